@@ -1,0 +1,28 @@
+//! # plumenet
+//!
+//! Calibration-free gas source localisation with mobile robots: a dispersion simulator, a
+//! data-driven plume model and rank-based Bayesian source term estimation.
+//!
+//! The pipeline (see `DESIGN.md`):
+//!
+//! ```text
+//! Layout (JSON) --> wind field (steady 2D flow around obstacles)        physics::wind
+//!               --> mean concentration c(x, y | source)                  physics::transport
+//!               --> dataset (many layouts x sources, .npy + manifest)    dataset
+//! Reality: intermittent filament plume over the same wind                physics::filament
+//! ```
+//!
+//! Modules own one box each: [`layout`] (arena, obstacles, validation), [`physics`] (wind,
+//! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
+//! [`report`] (PNG rendering), [`io`] (atomic files), [`bench`] (timings).
+
+// pub mod bench;
+// pub mod dataset;
+pub mod error;
+pub mod io;
+pub mod layout;
+pub mod physics;
+// pub mod report;
+
+pub use error::{Error, Result};
+pub use layout::Layout;
