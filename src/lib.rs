@@ -16,13 +16,13 @@
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`report`] (PNG rendering), [`io`] (atomic files), [`bench`] (timings).
 
-// pub mod bench;
-// pub mod dataset;
+pub mod bench;
+pub mod dataset;
 pub mod error;
 pub mod io;
 pub mod layout;
 pub mod physics;
-// pub mod report;
+pub mod report;
 
 pub use error::{Error, Result};
 pub use layout::Layout;

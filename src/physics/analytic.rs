@@ -53,3 +53,35 @@ pub fn point_source_between_walls(
     }
     rate / (2.0 * PI * diffusivity) * sum
 }
+
+/// Relative L2 error of a numerical field against [`point_source_between_walls`] over the free
+/// cells farther than `exclusion_m` from the source and at least `outlet_band_m` upwind of the
+/// outlet (where the reference's unbounded domain differs from the outflow condition). The
+/// layout should have no obstacles; the wind speed, diffusivity and height are taken from it.
+pub fn relative_l2_error(
+    layout: &crate::layout::Layout,
+    field: &ndarray::Array2<f64>,
+    source: (f64, f64),
+    exclusion_m: f64,
+    outlet_band_m: f64,
+) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for ((j, i), &value) in field.indexed_iter() {
+        let (x, y) = layout.cell_centre(j, i);
+        let near = (x - source.0).hypot(y - source.1) < exclusion_m;
+        if near || layout.is_solid(j, i) || x > layout.width() - outlet_band_m {
+            continue;
+        }
+        let exact = point_source_between_walls(
+            (x, y),
+            source,
+            layout.wind_speed(),
+            layout.diffusivity(),
+            layout.height(),
+            1.0,
+        );
+        num += (value - exact).powi(2);
+        den += exact.powi(2);
+    }
+    (num / den).sqrt()
+}

@@ -42,8 +42,8 @@ impl Default for FilamentConfig {
     fn default() -> Self {
         Self {
             source_rate: 1.0,
-            release_rate_hz: 10.0,
-            walk_fraction: 0.9,
+            release_rate_hz: 4.0,
+            walk_fraction: 0.97,
             initial_sigma_m: 0.03,
             dt_s: 0.1,
         }

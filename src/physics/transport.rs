@@ -24,6 +24,7 @@
 //! sides, in parallel.
 
 use faer::Mat;
+use faer::sparse::SparseColMat;
 use ndarray::{Array2, Array3, Axis};
 use rayon::prelude::*;
 
@@ -47,6 +48,7 @@ pub struct Transport {
     /// `(row, outflow F in m^2/s)` for each outlet face.
     outlet: Vec<(usize, f64)>,
     lu: SparseLu,
+    matrix: SparseColMat<usize, f64>,
     layout: Layout,
 }
 
@@ -127,8 +129,14 @@ impl Transport {
                 trip.push((c, c, diag));
             }
         }
-        let lu = SparseLu::factorize(&assemble(n, &trip)?)?;
-        Ok(Self { shape: (ny, nx), cell: h, index, outlet, lu, layout: layout.clone() })
+        let matrix = assemble(n, &trip)?;
+        let lu = SparseLu::factorize(&matrix)?;
+        Ok(Self { shape: (ny, nx), cell: h, index, outlet, lu, matrix, layout: layout.clone() })
+    }
+
+    /// The assembled operator (free cells in row-major order), for export to other solvers.
+    pub fn matrix(&self) -> &SparseColMat<usize, f64> {
+        &self.matrix
     }
 
     /// Number of unknowns (free cells).
@@ -199,7 +207,7 @@ impl Transport {
                         rhs[(k, col)] = wt;
                     }
                 }
-                self.lu.solve_in_place(&mut rhs);
+                self.solve_unknowns(&mut rhs);
                 for (col, mut field) in block.outer_iter_mut().enumerate() {
                     for ((j, i), value) in field.indexed_iter_mut() {
                         let k = self.index[[j, i]];
@@ -210,6 +218,12 @@ impl Transport {
                 }
             });
         Ok(out)
+    }
+
+    /// Solves the operator in place for a block of right-hand sides over the unknowns
+    /// (`unknowns x k`), as used by [`Transport::bank`].
+    pub fn solve_unknowns(&self, rhs: &mut Mat<f64>) {
+        self.lu.solve_in_place(rhs);
     }
 
     /// Gas flux (units/s) leaving through the outlet for a field of this layout.

@@ -1,0 +1,253 @@
+//! Random layouts and sources, solved with the physics model, written as a dataset.
+
+use std::path::Path;
+
+use ndarray::{Array1, Array2, Array3, Array4, Axis, s};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use super::manifest::{GenerateParams, Manifest, ShardInfo};
+use super::{GENERATOR_VERSION, SOURCE_ENCODING_SIGMA_CELLS};
+use crate::error::{Error, Result};
+use crate::io;
+use crate::layout::{Layout, LayoutSpec, Obstacle};
+use crate::physics::transport::Transport;
+use crate::physics::wind::WindField;
+
+/// Give up drawing a layout (or a source) after this many rejected attempts.
+const MAX_ATTEMPTS: usize = 10_000;
+/// Obstacle corners and sizes are multiples of this (m), so that candidate source points
+/// (centres of the 0.25 m grid) never lie on an obstacle edge.
+const SNAP_M: f64 = 0.25;
+
+/// One shard `index` of `count` (`--shard K/N`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// Zero-based shard index `K`.
+    pub index: usize,
+    /// Number of shards `N`.
+    pub count: usize,
+}
+
+impl std::str::FromStr for Shard {
+    type Err = Error;
+
+    /// Parses `K/N` with `0 <= K < N`.
+    fn from_str(s: &str) -> Result<Self> {
+        let bad = || Error::Parameter(format!("shard must be K/N with 0 <= K < N, got {s:?}"));
+        let (k, n) = s.split_once('/').ok_or_else(bad)?;
+        let index: usize = k.trim().parse().map_err(|_| bad())?;
+        let count: usize = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Self { index, count })
+    }
+}
+
+/// What to generate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GenerateConfig {
+    /// Arena, grid, wind and coefficients shared by every layout (its obstacles are ignored).
+    pub base: LayoutSpec,
+    /// Number of layouts in the whole dataset (all shards).
+    pub layouts: usize,
+    /// Sources per layout.
+    pub sources_per_layout: usize,
+    /// Master seed.
+    pub seed: u64,
+    /// Which part to generate; `None` for all.
+    pub shard: Option<Shard>,
+    /// Layout and source sampling parameters.
+    pub params: GenerateParams,
+}
+
+impl GenerateConfig {
+    fn check(&self) -> Result<()> {
+        if self.layouts == 0 || self.sources_per_layout == 0 {
+            return Err(Error::Parameter("--layouts and --sources must be at least 1".into()));
+        }
+        if let Some(shard) = self.shard
+            && shard.count > self.layouts
+        {
+            return Err(Error::Parameter(format!(
+                "{} shards for {} layouts would leave empty shards",
+                shard.count, self.layouts
+            )));
+        }
+        self.params.check()?;
+        Layout::from_json(&serde_json::to_string(&self.base).unwrap_or_default()).map(|_| ())
+    }
+
+    /// The global layout indices this run generates.
+    pub fn layout_range(&self) -> std::ops::Range<usize> {
+        match self.shard {
+            None => 0..self.layouts,
+            Some(Shard { index, count }) => {
+                index * self.layouts / count..(index + 1) * self.layouts / count
+            }
+        }
+    }
+}
+
+fn snap_range(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    let steps = ((hi - lo) / SNAP_M).floor().max(0.0) as u32;
+    lo + SNAP_M * f64::from(rng.random_range(0..=steps))
+}
+
+/// Draws a random valid layout: 1 to `max_obstacles` rectangles of varied sizes, some touching
+/// a side wall, kept `inlet_clearance_m` from the inlet and outlet, always leaving at least
+/// `min_gap_m` of free height in every column (so the channel is never blocked).
+///
+/// # Errors
+/// [`Error::Parameter`] when no valid layout is found in many attempts (impossible parameters).
+pub fn random_layout(base: &LayoutSpec, params: &GenerateParams, rng: &mut ChaCha8Rng) -> Result<Layout> {
+    let (w, h) = (base.width_m, base.height_m);
+    for _ in 0..MAX_ATTEMPTS {
+        let count = rng.random_range(1..=params.max_obstacles);
+        let obstacles: Vec<Obstacle> = (0..count)
+            .map(|_| {
+                let ow = snap_range(rng, params.min_size_m, params.max_width_m);
+                let oh = snap_range(rng, params.min_size_m, params.max_height_m.min(h - params.min_gap_m));
+                let x_min = snap_range(rng, params.inlet_clearance_m, w - params.inlet_clearance_m - ow);
+                let y_min = match rng.random_range(0..10) {
+                    0..=1 => 0.0,
+                    2..=3 => h - oh,
+                    _ => snap_range(rng, SNAP_M, h - oh - SNAP_M),
+                };
+                Obstacle { x_min, y_min, x_max: x_min + ow, y_max: y_min + oh }
+            })
+            .collect();
+        let spec = LayoutSpec { obstacles, ..base.clone() };
+        let Ok(layout) = spec.check() else { continue };
+        let min_free = layout
+            .solid()
+            .columns()
+            .into_iter()
+            .map(|col| col.iter().filter(|s| !**s).count())
+            .min()
+            .unwrap_or(0) as f64
+            * layout.cell();
+        if min_free + 1e-9 >= params.min_gap_m {
+            return Ok(layout);
+        }
+    }
+    Err(Error::Parameter("no valid random layout found: relax the obstacle parameters".into()))
+}
+
+/// Draws a source uniformly in free space, at least `margin` from walls and obstacles.
+fn random_source(layout: &Layout, margin: f64, rng: &mut ChaCha8Rng) -> Result<[f64; 2]> {
+    for _ in 0..MAX_ATTEMPTS {
+        let x = rng.random_range(margin..layout.width() - margin);
+        let y = rng.random_range(margin..layout.height() - margin);
+        let clear = layout.spec().obstacles.iter().all(|o| o.signed_distance(x, y) >= margin);
+        if clear && layout.is_free(x, y) {
+            return Ok([x, y]);
+        }
+    }
+    Err(Error::Parameter("no free source position found: the source margin is too large".into()))
+}
+
+/// Everything generated for one layout.
+struct LayoutSample {
+    layout: Layout,
+    wind: Array3<f32>,
+    sources: Vec<[f64; 2]>,
+    fields: Array3<f32>,
+}
+
+fn generate_layout(config: &GenerateConfig, k: usize) -> Result<LayoutSample> {
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    rng.set_stream(k as u64);
+    let layout = random_layout(&config.base, &config.params, &mut rng)?;
+    let sources = (0..config.sources_per_layout)
+        .map(|_| random_source(&layout, config.params.source_margin_m, &mut rng))
+        .collect::<Result<Vec<_>>>()?;
+    let wind = WindField::solve(&layout)?;
+    let fields = Transport::new(&layout, &wind)?.bank(&sources)?;
+    Ok(LayoutSample { wind: wind.centred().mapv(|x| x as f32), layout, sources, fields })
+}
+
+/// Gaussian source encoding `[H, W]` (see the module docs).
+pub fn source_encoding(layout: &Layout, [x, y]: [f64; 2]) -> Array2<f32> {
+    let sigma = SOURCE_ENCODING_SIGMA_CELLS * layout.cell();
+    Array2::from_shape_fn(layout.shape(), |(j, i)| {
+        let (cx, cy) = layout.cell_centre(j, i);
+        let d2 = (cx - x).powi(2) + (cy - y).powi(2);
+        (-d2 / (2.0 * sigma * sigma)).exp() as f32
+    })
+}
+
+/// Generates a dataset (or one shard of it) into `out`, calling `progress` after each layout.
+///
+/// # Errors
+/// [`Error::Parameter`] for bad settings, [`Error::Solver`] if a layout cannot be solved,
+/// [`Error::Io`] when `out` is not writable.
+pub fn generate(config: &GenerateConfig, out: &Path, progress: &(dyn Fn() + Sync)) -> Result<Manifest> {
+    config.check()?;
+    io::create_dir_all(out)?;
+    let range = config.layout_range();
+    let samples = range
+        .clone()
+        .into_par_iter()
+        .map(|k| {
+            let sample = generate_layout(config, k);
+            progress();
+            sample
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (ny, nx) = samples[0].layout.shape();
+    let (l, m) = (samples.len(), config.sources_per_layout);
+    let mut mask = Array3::<f32>::zeros((l, ny, nx));
+    let mut sdf = Array3::<f32>::zeros((l, ny, nx));
+    let mut wind = Array4::<f32>::zeros((l, 2, ny, nx));
+    let mut source_layout = Array1::<u32>::zeros(l * m);
+    let mut source_xy = Array2::<f32>::zeros((l * m, 2));
+    let mut encoding = Array3::<f32>::zeros((l * m, ny, nx));
+    let mut concentration = Array3::<f32>::zeros((l * m, ny, nx));
+    for (n, (sample, k)) in samples.iter().zip(range.clone()).enumerate() {
+        mask.index_axis_mut(Axis(0), n).assign(&sample.layout.solid().mapv(|s| f32::from(u8::from(s))));
+        sdf.index_axis_mut(Axis(0), n).assign(&sample.layout.signed_distance().mapv(|d| d as f32));
+        wind.index_axis_mut(Axis(0), n).assign(&sample.wind);
+        concentration.slice_mut(s![n * m..(n + 1) * m, .., ..]).assign(&sample.fields);
+        for (q, &src) in sample.sources.iter().enumerate() {
+            let row = n * m + q;
+            source_layout[row] = k as u32;
+            source_xy[[row, 0]] = src[0] as f32;
+            source_xy[[row, 1]] = src[1] as f32;
+            encoding.index_axis_mut(Axis(0), row).assign(&source_encoding(&sample.layout, src));
+        }
+    }
+    let manifest = Manifest {
+        format: "plumenet-dataset".into(),
+        generator_version: GENERATOR_VERSION,
+        seed: config.seed,
+        layouts_total: config.layouts,
+        sources_per_layout: m,
+        shard: config.shard.map(|s| ShardInfo {
+            index: s.index,
+            count: s.count,
+            first_layout: range.start,
+            layouts: l,
+        }),
+        base: LayoutSpec { obstacles: Vec::new(), ..config.base.clone() },
+        params: config.params.clone(),
+        grid: [ny, nx],
+        source_encoding: format!(
+            "exp(-d^2 / (2 s^2)), s = {SOURCE_ENCODING_SIGMA_CELLS} cells, d = distance from cell centre to source"
+        ),
+        layouts: samples.iter().map(|s| s.layout.spec().clone()).collect(),
+        arrays: Default::default(),
+    };
+    manifest.write_arrays(
+        out,
+        &mask,
+        &sdf,
+        &wind,
+        &source_layout,
+        &source_xy,
+        &encoding,
+        &concentration,
+    )
+}
