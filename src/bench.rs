@@ -65,7 +65,10 @@ pub fn time_bank(
     repeats: usize,
 ) -> Result<(BankTimings, Transport, Vec<[f64; 2]>)> {
     let candidates = layout.candidates(spacing_m)?;
-    let probe = candidates.first().copied().unwrap_or([layout.width() / 2.0, layout.height() / 2.0]);
+    let probe = candidates
+        .first()
+        .copied()
+        .unwrap_or([layout.width() / 2.0, layout.height() / 2.0]);
     let (mut wind_t, mut factor_t, mut one_t, mut bank_t) = (vec![], vec![], vec![], vec![]);
     let mut last = None;
     let mut steps = 0;

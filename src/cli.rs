@@ -131,14 +131,22 @@ struct BenchArgs {
 }
 
 fn parse_point(s: &str) -> Result<(f64, f64), String> {
-    let (x, y) = s.split_once(',').ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
-    let num = |t: &str| t.trim().parse::<f64>().map_err(|_| format!("{t:?} is not a number"));
+    let (x, y) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
+    let num = |t: &str| {
+        t.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("{t:?} is not a number"))
+    };
     Ok((num(x)?, num(y)?))
 }
 
 fn progress_bar(len: usize, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(len as u64);
-    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}") {
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}")
+    {
         bar.set_style(style.progress_chars("=> "));
     }
     bar.set_message(what.to_string());
@@ -169,8 +177,15 @@ fn simulate(a: SimulateArgs) -> Result<()> {
         io::write_npy(path, &wind.centred().mapv(|v| v as f32))?;
     }
     if let Some(path) = &a.png {
-        let title = format!("mean concentration, source ({}, {}) m", a.source.0, a.source.1);
-        let plot = FieldPlot { title, log: a.log, unit: "units/m2".into() };
+        let title = format!(
+            "mean concentration, source ({}, {}) m",
+            a.source.0, a.source.1
+        );
+        let plot = FieldPlot {
+            title,
+            log: a.log,
+            unit: "units/m2".into(),
+        };
         save_png(&render_field(&field, &layout, &plot)?, path)?;
     }
     let outlet = transport.outlet_flux(&field);
@@ -195,7 +210,10 @@ fn bank(a: BankArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     let candidates = layout.candidates(a.spacing)?;
     if candidates.is_empty() {
-        bail!("the layout has no free candidate cell at spacing {} m", a.spacing);
+        bail!(
+            "the layout has no free candidate cell at spacing {} m",
+            a.spacing
+        );
     }
     let wind = WindField::solve(&layout)?;
     let bank = Transport::new(&layout, &wind)?.bank(&candidates)?;
@@ -239,7 +257,12 @@ fn generate(a: GenerateArgs) -> Result<()> {
 fn merge(a: MergeArgs) -> Result<()> {
     let shards: Vec<&Path> = a.shards.iter().map(PathBuf::as_path).collect();
     let manifest = dataset::merge(&shards, &a.out)?;
-    println!("merged {} shards ({} layouts) into {}", shards.len(), manifest.layouts.len(), a.out.display());
+    println!(
+        "merged {} shards ({} layouts) into {}",
+        shards.len(),
+        manifest.layouts.len(),
+        a.out.display()
+    );
     Ok(())
 }
 
@@ -257,7 +280,11 @@ fn run_bench(a: BenchArgs) -> Result<()> {
         a.repeats,
         rayon::current_num_threads()
     );
-    println!("  wind solve         {:9.2} ms ({} iterations)", ms(t.wind_s), t.wind_steps);
+    println!(
+        "  wind solve         {:9.2} ms ({} iterations)",
+        ms(t.wind_s),
+        t.wind_steps
+    );
     println!("  factorisation      {:9.2} ms", ms(t.factor_s));
     println!("  one source         {:9.3} ms", ms(t.one_source_s));
     println!("  whole bank         {:9.2} ms", ms(t.bank_s));
@@ -279,10 +306,13 @@ fn run_bench(a: BenchArgs) -> Result<()> {
             .context("cannot run python3 for the SuperLU reference (use --no-reference to skip)")?;
         let _ = std::fs::remove_dir_all(&dir);
         if !output.status.success() {
-            bail!("SuperLU reference failed: {}", String::from_utf8_lossy(&output.stderr).trim());
+            bail!(
+                "SuperLU reference failed: {}",
+                String::from_utf8_lossy(&output.stderr).trim()
+            );
         }
-        let r: serde_json::Value = serde_json::from_slice(&output.stdout)
-            .context("SuperLU reference printed no JSON")?;
+        let r: serde_json::Value =
+            serde_json::from_slice(&output.stdout).context("SuperLU reference printed no JSON")?;
         let f = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
         let superlu = f("factor_s") + f("solve_s");
         println!(
@@ -293,8 +323,14 @@ fn run_bench(a: BenchArgs) -> Result<()> {
             ms(superlu),
             f("max_abs_difference")
         );
-        println!("  ratio SuperLU (factor + bank) / plumenet (factor + bank):        {:.2}x", superlu / (t.factor_s + t.bank_s));
-        println!("  ratio SuperLU (factor + bank) / plumenet (wind + factor + bank): {:.2}x", superlu / t.total_s());
+        println!(
+            "  ratio SuperLU (factor + bank) / plumenet (factor + bank):        {:.2}x",
+            superlu / (t.factor_s + t.bank_s)
+        );
+        println!(
+            "  ratio SuperLU (factor + bank) / plumenet (wind + factor + bank): {:.2}x",
+            superlu / t.total_s()
+        );
         report["superlu"] = r;
         report["ratio_transport"] = json!(superlu / (t.factor_s + t.bank_s));
         report["ratio_with_wind"] = json!(superlu / t.total_s());

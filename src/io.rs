@@ -33,14 +33,21 @@ pub fn read_to_string(path: &Path) -> Result<String> {
 /// [`Error::Io`] when the directory is not writable or the disk is full; the temporary file is
 /// removed and `path` is left untouched.
 pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut Vec<u8>) -> Result<()>) -> Result<()> {
-    let io_err = |action, source| Error::Io { action, path: path.to_path_buf(), source };
+    let io_err = |action, source| Error::Io {
+        action,
+        path: path.to_path_buf(),
+        source,
+    };
     let mut bytes = Vec::new();
     fill(&mut bytes)?;
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
     let result = (|| {
         let mut f = fs::File::create(&tmp)?;
@@ -73,8 +80,10 @@ pub fn create_dir_all(path: &Path) -> Result<()> {
 /// [`Error::Io`] on write failure.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     write_atomic(path, |buf| {
-        serde_json::to_writer_pretty(&mut *buf, value)
-            .map_err(|source| Error::Json { path: path.to_path_buf(), source })?;
+        serde_json::to_writer_pretty(&mut *buf, value).map_err(|source| Error::Json {
+            path: path.to_path_buf(),
+            source,
+        })?;
         buf.push(b'\n');
         Ok(())
     })
@@ -86,7 +95,10 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 /// [`Error::Io`] when unreadable, [`Error::Json`] when malformed.
 pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
     let text = read_to_string(path)?;
-    serde_json::from_str(&text).map_err(|source| Error::Json { path: path.to_path_buf(), source })
+    serde_json::from_str(&text).map_err(|source| Error::Json {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Writes an array as `.npy`, atomically.
@@ -121,6 +133,8 @@ where
         path: path.to_path_buf(),
         source,
     })?;
-    ndarray::Array::<A, D>::read_npy(std::io::BufReader::new(file))
-        .map_err(|e| Error::Npy { path: path.to_path_buf(), reason: e.to_string() })
+    ndarray::Array::<A, D>::read_npy(std::io::BufReader::new(file)).map_err(|e| Error::Npy {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
 }

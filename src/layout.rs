@@ -146,10 +146,11 @@ impl LayoutSpec {
                 return bad(format!("obstacle {k} has a non-finite coordinate"));
             }
             if o.x_min >= o.x_max || o.y_min >= o.y_max {
-                return bad(format!("obstacle {k} needs x_min < x_max and y_min < y_max"));
+                return bad(format!(
+                    "obstacle {k} needs x_min < x_max and y_min < y_max"
+                ));
             }
-            if o.x_min < 0.0 || o.y_min < 0.0 || o.x_max > self.width_m || o.y_max > self.height_m
-            {
+            if o.x_min < 0.0 || o.y_min < 0.0 || o.x_max > self.width_m || o.y_max > self.height_m {
                 return bad(format!(
                     "obstacle {k} [{}, {}] x [{}, {}] leaves the arena [0, {}] x [0, {}]",
                     o.x_min, o.x_max, o.y_min, o.y_max, self.width_m, self.height_m
@@ -164,11 +165,18 @@ impl LayoutSpec {
                 }
             }
             if !covered {
-                return bad(format!("obstacle {k} is smaller than a cell and covers no cell centre"));
+                return bad(format!(
+                    "obstacle {k} is smaller than a cell and covers no cell centre"
+                ));
             }
         }
         check_connectivity(&solid, self.cell_m)?;
-        Ok(Layout { spec: self, nx, ny, solid })
+        Ok(Layout {
+            spec: self,
+            nx,
+            ny,
+            solid,
+        })
     }
 
     fn diffusivity(&self) -> f64 {
@@ -176,7 +184,8 @@ impl LayoutSpec {
     }
 
     fn eddy_viscosity(&self) -> f64 {
-        self.eddy_viscosity_m2ps.unwrap_or(DEFAULT_EDDY_VISCOSITY_M2PS)
+        self.eddy_viscosity_m2ps
+            .unwrap_or(DEFAULT_EDDY_VISCOSITY_M2PS)
     }
 }
 
@@ -188,7 +197,10 @@ fn cell_centre(cell: f64, i: usize, j: usize) -> (f64, f64) {
 fn check_connectivity(solid: &Array2<bool>, cell: f64) -> Result<()> {
     let (ny, nx) = solid.dim();
     let mut seen = Array2::from_elem((ny, nx), false);
-    let mut queue: VecDeque<(usize, usize)> = (0..ny).filter(|&j| !solid[[j, 0]]).map(|j| (j, 0)).collect();
+    let mut queue: VecDeque<(usize, usize)> = (0..ny)
+        .filter(|&j| !solid[[j, 0]])
+        .map(|j| (j, 0))
+        .collect();
     for &(j, i) in &queue {
         seen[[j, i]] = true;
     }
@@ -211,7 +223,10 @@ fn check_connectivity(solid: &Array2<bool>, cell: f64) -> Result<()> {
             "obstacles block the channel: no free path from the inlet (x = 0) to the outlet".into(),
         ));
     }
-    if let Some(((j, i), _)) = solid.indexed_iter().find(|&((j, i), &s)| !s && !seen[[j, i]]) {
+    if let Some(((j, i), _)) = solid
+        .indexed_iter()
+        .find(|&((j, i), &s)| !s && !seen[[j, i]])
+    {
         let (x, y) = cell_centre(cell, i, j);
         return Err(Error::Layout(format!(
             "the free cell at ({x}, {y}) is enclosed by obstacles; \
@@ -227,8 +242,8 @@ impl Layout {
     /// # Errors
     /// [`Error::Layout`] for malformed JSON or any rule in [`LayoutSpec::check`].
     pub fn from_json(text: &str) -> Result<Self> {
-        let spec: LayoutSpec =
-            serde_json::from_str(text).map_err(|e| Error::Layout(format!("malformed JSON: {e}")))?;
+        let spec: LayoutSpec = serde_json::from_str(text)
+            .map_err(|e| Error::Layout(format!("malformed JSON: {e}")))?;
         spec.check()
     }
 

@@ -66,7 +66,9 @@ pub struct GenerateConfig {
 impl GenerateConfig {
     fn check(&self) -> Result<()> {
         if self.layouts == 0 || self.sources_per_layout == 0 {
-            return Err(Error::Parameter("--layouts and --sources must be at least 1".into()));
+            return Err(Error::Parameter(
+                "--layouts and --sources must be at least 1".into(),
+            ));
         }
         if let Some(shard) = self.shard
             && shard.count > self.layouts
@@ -102,24 +104,44 @@ fn snap_range(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
 ///
 /// # Errors
 /// [`Error::Parameter`] when no valid layout is found in many attempts (impossible parameters).
-pub fn random_layout(base: &LayoutSpec, params: &GenerateParams, rng: &mut ChaCha8Rng) -> Result<Layout> {
+pub fn random_layout(
+    base: &LayoutSpec,
+    params: &GenerateParams,
+    rng: &mut ChaCha8Rng,
+) -> Result<Layout> {
     let (w, h) = (base.width_m, base.height_m);
     for _ in 0..MAX_ATTEMPTS {
         let count = rng.random_range(1..=params.max_obstacles);
         let obstacles: Vec<Obstacle> = (0..count)
             .map(|_| {
                 let ow = snap_range(rng, params.min_size_m, params.max_width_m);
-                let oh = snap_range(rng, params.min_size_m, params.max_height_m.min(h - params.min_gap_m));
-                let x_min = snap_range(rng, params.inlet_clearance_m, w - params.inlet_clearance_m - ow);
+                let oh = snap_range(
+                    rng,
+                    params.min_size_m,
+                    params.max_height_m.min(h - params.min_gap_m),
+                );
+                let x_min = snap_range(
+                    rng,
+                    params.inlet_clearance_m,
+                    w - params.inlet_clearance_m - ow,
+                );
                 let y_min = match rng.random_range(0..10) {
                     0..=1 => 0.0,
                     2..=3 => h - oh,
                     _ => snap_range(rng, SNAP_M, h - oh - SNAP_M),
                 };
-                Obstacle { x_min, y_min, x_max: x_min + ow, y_max: y_min + oh }
+                Obstacle {
+                    x_min,
+                    y_min,
+                    x_max: x_min + ow,
+                    y_max: y_min + oh,
+                }
             })
             .collect();
-        let spec = LayoutSpec { obstacles, ..base.clone() };
+        let spec = LayoutSpec {
+            obstacles,
+            ..base.clone()
+        };
         let Ok(layout) = spec.check() else { continue };
         let min_free = layout
             .solid()
@@ -133,7 +155,9 @@ pub fn random_layout(base: &LayoutSpec, params: &GenerateParams, rng: &mut ChaCh
             return Ok(layout);
         }
     }
-    Err(Error::Parameter("no valid random layout found: relax the obstacle parameters".into()))
+    Err(Error::Parameter(
+        "no valid random layout found: relax the obstacle parameters".into(),
+    ))
 }
 
 /// Draws a source uniformly in free space, at least `margin` from walls and obstacles.
@@ -141,12 +165,18 @@ fn random_source(layout: &Layout, margin: f64, rng: &mut ChaCha8Rng) -> Result<[
     for _ in 0..MAX_ATTEMPTS {
         let x = rng.random_range(margin..layout.width() - margin);
         let y = rng.random_range(margin..layout.height() - margin);
-        let clear = layout.spec().obstacles.iter().all(|o| o.signed_distance(x, y) >= margin);
+        let clear = layout
+            .spec()
+            .obstacles
+            .iter()
+            .all(|o| o.signed_distance(x, y) >= margin);
         if clear && layout.is_free(x, y) {
             return Ok([x, y]);
         }
     }
-    Err(Error::Parameter("no free source position found: the source margin is too large".into()))
+    Err(Error::Parameter(
+        "no free source position found: the source margin is too large".into(),
+    ))
 }
 
 /// Everything generated for one layout.
@@ -166,7 +196,12 @@ fn generate_layout(config: &GenerateConfig, k: usize) -> Result<LayoutSample> {
         .collect::<Result<Vec<_>>>()?;
     let wind = WindField::solve(&layout)?;
     let fields = Transport::new(&layout, &wind)?.bank(&sources)?;
-    Ok(LayoutSample { wind: wind.centred().mapv(|x| x as f32), layout, sources, fields })
+    Ok(LayoutSample {
+        wind: wind.centred().mapv(|x| x as f32),
+        layout,
+        sources,
+        fields,
+    })
 }
 
 /// Gaussian source encoding `[H, W]` (see the module docs).
@@ -184,7 +219,11 @@ pub fn source_encoding(layout: &Layout, [x, y]: [f64; 2]) -> Array2<f32> {
 /// # Errors
 /// [`Error::Parameter`] for bad settings, [`Error::Solver`] if a layout cannot be solved,
 /// [`Error::Io`] when `out` is not writable.
-pub fn generate(config: &GenerateConfig, out: &Path, progress: &(dyn Fn() + Sync)) -> Result<Manifest> {
+pub fn generate(
+    config: &GenerateConfig,
+    out: &Path,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Manifest> {
     config.check()?;
     io::create_dir_all(out)?;
     let range = config.layout_range();
@@ -207,16 +246,22 @@ pub fn generate(config: &GenerateConfig, out: &Path, progress: &(dyn Fn() + Sync
     let mut encoding = Array3::<f32>::zeros((l * m, ny, nx));
     let mut concentration = Array3::<f32>::zeros((l * m, ny, nx));
     for (n, (sample, k)) in samples.iter().zip(range.clone()).enumerate() {
-        mask.index_axis_mut(Axis(0), n).assign(&sample.layout.solid().mapv(|s| f32::from(u8::from(s))));
-        sdf.index_axis_mut(Axis(0), n).assign(&sample.layout.signed_distance().mapv(|d| d as f32));
+        mask.index_axis_mut(Axis(0), n)
+            .assign(&sample.layout.solid().mapv(|s| f32::from(u8::from(s))));
+        sdf.index_axis_mut(Axis(0), n)
+            .assign(&sample.layout.signed_distance().mapv(|d| d as f32));
         wind.index_axis_mut(Axis(0), n).assign(&sample.wind);
-        concentration.slice_mut(s![n * m..(n + 1) * m, .., ..]).assign(&sample.fields);
+        concentration
+            .slice_mut(s![n * m..(n + 1) * m, .., ..])
+            .assign(&sample.fields);
         for (q, &src) in sample.sources.iter().enumerate() {
             let row = n * m + q;
             source_layout[row] = k as u32;
             source_xy[[row, 0]] = src[0] as f32;
             source_xy[[row, 1]] = src[1] as f32;
-            encoding.index_axis_mut(Axis(0), row).assign(&source_encoding(&sample.layout, src));
+            encoding
+                .index_axis_mut(Axis(0), row)
+                .assign(&source_encoding(&sample.layout, src));
         }
     }
     let manifest = Manifest {
@@ -231,7 +276,10 @@ pub fn generate(config: &GenerateConfig, out: &Path, progress: &(dyn Fn() + Sync
             first_layout: range.start,
             layouts: l,
         }),
-        base: LayoutSpec { obstacles: Vec::new(), ..config.base.clone() },
+        base: LayoutSpec {
+            obstacles: Vec::new(),
+            ..config.base.clone()
+        },
         params: config.params.clone(),
         grid: [ny, nx],
         source_encoding: format!(

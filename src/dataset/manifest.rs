@@ -59,7 +59,9 @@ impl GenerateParams {
             || lengths.iter().any(|v| !(v.is_finite() && *v >= 0.0))
             || self.min_size_m > self.max_width_m.min(self.max_height_m)
         {
-            return Err(Error::Parameter(format!("bad generator parameters {self:?}")));
+            return Err(Error::Parameter(format!(
+                "bad generator parameters {self:?}"
+            )));
         }
         Ok(())
     }
@@ -159,7 +161,11 @@ impl Manifest {
         for ((name, dtype), shape) in ARRAYS.iter().zip(shapes) {
             self.arrays.insert(
                 name.to_string(),
-                ArrayInfo { file: format!("{name}.npy"), dtype: dtype.to_string(), shape: shape.to_vec() },
+                ArrayInfo {
+                    file: format!("{name}.npy"),
+                    dtype: dtype.to_string(),
+                    shape: shape.to_vec(),
+                },
             );
         }
         let path = |name: &str| dir.join(format!("{name}.npy"));
@@ -184,7 +190,10 @@ impl Manifest {
         let m: Manifest = io::read_json(&dir.join("manifest.json"))?;
         let bad = |msg: String| Err(Error::Dataset(format!("{}: {msg}", dir.display())));
         if m.format != "plumenet-dataset" {
-            return bad(format!("format is {:?}, expected \"plumenet-dataset\"", m.format));
+            return bad(format!(
+                "format is {:?}, expected \"plumenet-dataset\"",
+                m.format
+            ));
         }
         if m.generator_version != GENERATOR_VERSION {
             return bad(format!(
@@ -194,14 +203,20 @@ impl Manifest {
         }
         let expected_layouts = m.shard.map_or(m.layouts_total, |s| s.layouts);
         if m.layouts.len() != expected_layouts {
-            return bad(format!("{} layouts listed, expected {expected_layouts}", m.layouts.len()));
+            return bad(format!(
+                "{} layouts listed, expected {expected_layouts}",
+                m.layouts.len()
+            ));
         }
         for (name, dtype) in ARRAYS {
             let Some(info) = m.arrays.get(name) else {
                 return bad(format!("array {name} is not listed"));
             };
             if info.dtype != dtype {
-                return bad(format!("array {name} has dtype {}, expected {dtype}", info.dtype));
+                return bad(format!(
+                    "array {name} has dtype {}, expected {dtype}",
+                    info.dtype
+                ));
             }
             let path = dir.join(&info.file);
             let found = if dtype == "<u4" {
@@ -212,7 +227,10 @@ impl Manifest {
             if found != info.shape {
                 return Err(Error::Npy {
                     path,
-                    reason: format!("shape {found:?} differs from the manifest's {:?}", info.shape),
+                    reason: format!(
+                        "shape {found:?} differs from the manifest's {:?}",
+                        info.shape
+                    ),
                 });
             }
         }
@@ -220,7 +238,17 @@ impl Manifest {
     }
 
     /// The manifest with shard information removed, for comparing shards of one dataset.
-    fn identity(&self) -> (u32, u64, usize, usize, &LayoutSpec, &GenerateParams, [usize; 2]) {
+    fn identity(
+        &self,
+    ) -> (
+        u32,
+        u64,
+        usize,
+        usize,
+        &LayoutSpec,
+        &GenerateParams,
+        [usize; 2],
+    ) {
         (
             self.generator_version,
             self.seed,
@@ -257,12 +285,20 @@ pub fn merge(shards: &[&Path], out: &Path) -> Result<Manifest> {
             )));
         }
         if m.shard.is_none() {
-            return Err(Error::Dataset(format!("{} is a complete dataset, not a shard", dir.display())));
+            return Err(Error::Dataset(format!(
+                "{} is a complete dataset, not a shard",
+                dir.display()
+            )));
         }
     }
     let mut next = 0;
     for (m, dir) in &loaded {
-        let s = m.shard.unwrap_or(ShardInfo { index: 0, count: 0, first_layout: 0, layouts: 0 });
+        let s = m.shard.unwrap_or(ShardInfo {
+            index: 0,
+            count: 0,
+            first_layout: 0,
+            layouts: 0,
+        });
         if s.first_layout != next {
             return Err(Error::Dataset(format!(
                 "shards do not tile the dataset: {} starts at layout {}, expected {next}",

@@ -39,7 +39,11 @@ pub fn point_source_between_walls(
     let dx = x - xs;
     let image = |yi: f64| {
         let r = dx.hypot(y - yi);
-        if r == 0.0 { f64::INFINITY } else { scaled_k0(a, dx, r) }
+        if r == 0.0 {
+            f64::INFINITY
+        } else {
+            scaled_k0(a, dx, r)
+        }
     };
     let mut sum = image(ys) + image(-ys);
     // Images at 2kH +- ys for k != 0; stop once a whole ring is negligible.

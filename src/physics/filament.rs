@@ -84,11 +84,18 @@ impl FilamentPlume {
         seed: u64,
     ) -> Result<Self> {
         layout.check_source(source.0, source.1)?;
-        let positive = [config.source_rate, config.release_rate_hz, config.initial_sigma_m, config.dt_s];
+        let positive = [
+            config.source_rate,
+            config.release_rate_hz,
+            config.initial_sigma_m,
+            config.dt_s,
+        ];
         if positive.iter().any(|v| !(v.is_finite() && *v > 0.0))
             || !(0.0..=1.0).contains(&config.walk_fraction)
         {
-            return Err(Error::Parameter(format!("bad filament settings {config:?}")));
+            return Err(Error::Parameter(format!(
+                "bad filament settings {config:?}"
+            )));
         }
         Ok(Self {
             layout: layout.clone(),
@@ -123,14 +130,20 @@ impl FilamentPlume {
         self.pending += self.config.release_rate_hz * dt;
         while self.pending >= 1.0 {
             self.pending -= 1.0;
-            self.filaments.push(Filament { x: self.source.0, y: self.source.1, age: 0.0 });
+            self.filaments.push(Filament {
+                x: self.source.0,
+                y: self.source.1,
+                age: 0.0,
+            });
         }
         let walk = (2.0 * self.config.walk_fraction * self.layout.diffusivity() * dt).sqrt();
         let (w, h) = (self.layout.width(), self.layout.height());
         let mut kept = Vec::with_capacity(self.filaments.len());
         for f in std::mem::take(&mut self.filaments) {
             let (u1, v1) = self.wind.velocity_at(f.x, f.y);
-            let (u2, v2) = self.wind.velocity_at(f.x + 0.5 * dt * u1, f.y + 0.5 * dt * v1);
+            let (u2, v2) = self
+                .wind
+                .velocity_at(f.x + 0.5 * dt * u1, f.y + 0.5 * dt * v1);
             let nx: f64 = StandardNormal.sample(&mut self.rng);
             let ny: f64 = StandardNormal.sample(&mut self.rng);
             let x = f.x + dt * u2 + walk * nx;
@@ -144,7 +157,11 @@ impl FilamentPlume {
                 y = 2.0 * h - y;
             }
             let (x, y) = self.reflect_off_obstacles((f.x, f.y), (x, y.clamp(0.0, h)));
-            kept.push(Filament { x, y, age: f.age + dt });
+            kept.push(Filament {
+                x,
+                y,
+                age: f.age + dt,
+            });
         }
         self.filaments = kept;
         self.time += dt;
@@ -168,7 +185,11 @@ impl FilamentPlume {
         let (jo, io) = self.layout.cell_of(from.0, from.1);
         let cell = self.layout.cell();
         let mirror = |old: usize, new: usize, coord: f64| {
-            let face = if new > old { new as f64 * cell } else { (new + 1) as f64 * cell };
+            let face = if new > old {
+                new as f64 * cell
+            } else {
+                (new + 1) as f64 * cell
+            };
             2.0 * face - coord
         };
         let (mut x, mut y) = to;
@@ -184,8 +205,13 @@ impl FilamentPlume {
             y = mirror(jo, jn, y);
         }
         let (jr, ir) = self.layout.cell_of(x, y);
-        let inside = x > 0.0 && x < self.layout.width() && (0.0..=self.layout.height()).contains(&y);
-        if inside && !self.layout.is_solid(jr, ir) { (x, y) } else { from }
+        let inside =
+            x > 0.0 && x < self.layout.width() && (0.0..=self.layout.height()).contains(&y);
+        if inside && !self.layout.is_solid(jr, ir) {
+            (x, y)
+        } else {
+            from
+        }
     }
 
     /// Instantaneous concentration (units/m^2) at a point; zero inside obstacles.
@@ -212,7 +238,11 @@ impl FilamentPlume {
                     .iter()
                     .map(|&fy| {
                         let d2 = dx2 + (y - fy) * (y - fy);
-                        if d2 > reach { 0.0 } else { (-d2 / (2.0 * var)).exp() }
+                        if d2 > reach {
+                            0.0
+                        } else {
+                            (-d2 / (2.0 * var)).exp()
+                        }
                     })
                     .sum::<f64>()
                     * mass

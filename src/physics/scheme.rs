@@ -30,7 +30,11 @@ impl Scheme {
             Scheme::Upwind => 1.0,
             Scheme::PowerLaw => (1.0 - 0.1 * pe).max(0.0).powi(5),
             Scheme::Central | Scheme::Exponential => {
-                if pe < 1e-6 { 1.0 - 0.5 * pe } else { pe / pe.exp_m1() }
+                if pe < 1e-6 {
+                    1.0 - 0.5 * pe
+                } else {
+                    pe / pe.exp_m1()
+                }
             }
         }
     }

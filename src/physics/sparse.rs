@@ -7,7 +7,9 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::SupernodalThreshold;
-use faer::sparse::linalg::lu::{LuRef, LuSymbolicParams, NumericLu, SymbolicLu, factorize_symbolic_lu};
+use faer::sparse::linalg::lu::{
+    LuRef, LuSymbolicParams, NumericLu, SymbolicLu, factorize_symbolic_lu,
+};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Conj, Mat, Par};
 
@@ -21,7 +23,9 @@ pub struct SparseLu {
 
 impl std::fmt::Debug for SparseLu {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SparseLu").field("n", &self.dim()).finish_non_exhaustive()
+        f.debug_struct("SparseLu")
+            .field("n", &self.dim())
+            .finish_non_exhaustive()
     }
 }
 
@@ -30,8 +34,10 @@ impl std::fmt::Debug for SparseLu {
 /// # Errors
 /// [`Error::Solver`] when an index is out of range.
 pub fn assemble(n: usize, triplets: &[(usize, usize, f64)]) -> Result<SparseColMat<usize, f64>> {
-    let t: Vec<Triplet<usize, usize, f64>> =
-        triplets.iter().map(|&(r, c, v)| Triplet::new(r, c, v)).collect();
+    let t: Vec<Triplet<usize, usize, f64>> = triplets
+        .iter()
+        .map(|&(r, c, v)| Triplet::new(r, c, v))
+        .collect();
     SparseColMat::try_new_from_triplets(n, n, &t)
         .map_err(|e| Error::Solver(format!("cannot assemble sparse matrix: {e:?}")))
 }
@@ -43,17 +49,25 @@ impl SparseLu {
     /// # Errors
     /// [`Error::Solver`] when the matrix is structurally or numerically singular.
     pub fn factorize(a: &SparseColMat<usize, f64>) -> Result<Self> {
-        let fail = |what: &str, e: &dyn std::fmt::Debug| Error::Solver(format!("sparse LU {what}: {e:?}"));
+        let fail =
+            |what: &str, e: &dyn std::fmt::Debug| Error::Solver(format!("sparse LU {what}: {e:?}"));
         let params = LuSymbolicParams {
             supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
             ..Default::default()
         };
-        let symbolic = factorize_symbolic_lu(a.symbolic(), params).map_err(|e| fail("analysis", &e))?;
+        let symbolic =
+            factorize_symbolic_lu(a.symbolic(), params).map_err(|e| fail("analysis", &e))?;
         let mut numeric = NumericLu::new();
         let scratch = symbolic.factorize_numeric_lu_scratch::<f64>(Par::Seq, Default::default());
         let mut buf = MemBuffer::try_new(scratch).map_err(|e| fail("workspace", &e))?;
         symbolic
-            .factorize_numeric_lu(&mut numeric, a.as_ref(), Par::Seq, MemStack::new(&mut buf), Default::default())
+            .factorize_numeric_lu(
+                &mut numeric,
+                a.as_ref(),
+                Par::Seq,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
             .map_err(|e| fail("factorisation", &e))?;
         Ok(Self { symbolic, numeric })
     }
@@ -65,7 +79,9 @@ impl SparseLu {
 
     /// Solves `A x = b` in place for every column of `rhs` (shape `n x k`), single-threaded.
     pub fn solve_in_place(&self, rhs: &mut Mat<f64>) {
-        let scratch = self.symbolic.solve_in_place_scratch::<f64>(rhs.ncols(), Par::Seq);
+        let scratch = self
+            .symbolic
+            .solve_in_place_scratch::<f64>(rhs.ncols(), Par::Seq);
         let mut buf = MemBuffer::new(scratch);
         LuRef::new_unchecked(&self.symbolic, &self.numeric).solve_in_place_with_conj(
             Conj::No,

@@ -131,7 +131,15 @@ impl Transport {
         }
         let matrix = assemble(n, &trip)?;
         let lu = SparseLu::factorize(&matrix)?;
-        Ok(Self { shape: (ny, nx), cell: h, index, outlet, lu, matrix, layout: layout.clone() })
+        Ok(Self {
+            shape: (ny, nx),
+            cell: h,
+            index,
+            outlet,
+            lu,
+            matrix,
+            layout: layout.clone(),
+        })
     }
 
     /// The assembled operator (free cells in row-major order), for export to other solvers.
@@ -192,8 +200,10 @@ impl Transport {
     /// # Errors
     /// [`Error::Source`] for the first position not in free space.
     pub fn bank(&self, sources: &[[f64; 2]]) -> Result<Array3<f32>> {
-        let weights: Vec<Vec<(usize, f64)>> =
-            sources.iter().map(|&[x, y]| self.source_weights(x, y)).collect::<Result<_>>()?;
+        let weights: Vec<Vec<(usize, f64)>> = sources
+            .iter()
+            .map(|&[x, y]| self.source_weights(x, y))
+            .collect::<Result<_>>()?;
         let (ny, nx) = self.shape;
         let mut out = Array3::<f32>::zeros((sources.len(), ny, nx));
         let n = self.unknowns();

@@ -48,7 +48,11 @@ pub struct WindConfig {
 
 impl Default for WindConfig {
     fn default() -> Self {
-        Self { tolerance: 1e-4, max_steps: 5_000, courant: 4.0 }
+        Self {
+            tolerance: 1e-4,
+            max_steps: 5_000,
+            courant: 4.0,
+        }
     }
 }
 
@@ -140,7 +144,17 @@ impl<'a> Mac<'a> {
             }
         }
         let poisson = SparseLu::factorize(&assemble(n_p, &trip)?)?;
-        Ok(Self { layout, nx, ny, dx: layout.cell(), u_face, v_face, p_index, n_p, poisson })
+        Ok(Self {
+            layout,
+            nx,
+            ny,
+            dx: layout.cell(),
+            u_face,
+            v_face,
+            p_index,
+            n_p,
+            poisson,
+        })
     }
 
     /// Makes `(u, v)` discretely divergence-free: `u -= grad(phi)` with `div(grad(phi)) = div(u)`.
@@ -192,7 +206,8 @@ impl<'a> Mac<'a> {
             return here;
         }
         if self.u_face[[nj, i]] == Face::Fixed && i > 0 {
-            let wall = self.layout.is_solid(nj, i - 1) && (i == self.nx || self.layout.is_solid(nj, i));
+            let wall =
+                self.layout.is_solid(nj, i - 1) && (i == self.nx || self.layout.is_solid(nj, i));
             if wall {
                 return -here;
             }
@@ -256,8 +271,16 @@ fn sweep(
                 prev_c = 0.0;
                 continue;
             }
-            let lower = if k > 0 && free(k - 1) { -dt * m[k] } else { 0.0 };
-            let upper = if k + 1 < n && free(k + 1) { -dt * p[k] } else { 0.0 };
+            let lower = if k > 0 && free(k - 1) {
+                -dt * m[k]
+            } else {
+                0.0
+            };
+            let upper = if k + 1 < n && free(k + 1) {
+                -dt * p[k]
+            } else {
+                0.0
+            };
             let diag = 1.0 + dt * (m[k] + p[k]) - lower * prev_c;
             let prev_x = if k > 0 { x[k - 1] } else { 0.0 };
             x[k] = (x[k] - lower * prev_x) / diag;
@@ -287,7 +310,9 @@ impl WindField {
     /// within `config.max_steps`; [`Error::Parameter`] for a bad configuration.
     pub fn solve_with(layout: &Layout, config: &WindConfig) -> Result<Self> {
         if !(config.tolerance > 0.0 && config.courant > 0.0) {
-            return Err(Error::Parameter(format!("bad wind solver settings {config:?}")));
+            return Err(Error::Parameter(format!(
+                "bad wind solver settings {config:?}"
+            )));
         }
         let mac = Mac::new(layout)?;
         let (nx, ny, dx) = (mac.nx, mac.ny, mac.dx);
@@ -295,7 +320,11 @@ impl WindField {
         let nu = layout.eddy_viscosity();
         let mut u = Array2::from_shape_fn((ny, nx + 1), |(j, i)| {
             let inlet_open = i > 0 || !layout.is_solid(j, 0);
-            if mac.u_face[[j, i]] == Face::Free || (i == 0 && inlet_open) { speed } else { 0.0 }
+            if mac.u_face[[j, i]] == Face::Free || (i == 0 && inlet_open) {
+                speed
+            } else {
+                0.0
+            }
         });
         let mut v = Array2::zeros((ny + 1, nx));
         mac.project(&mut u, &mut v);
@@ -333,7 +362,8 @@ impl WindField {
                         continue;
                     }
                     let c = v[[j, i]];
-                    let ubar = 0.25 * (u[[j - 1, i]] + u[[j - 1, i + 1]] + u[[j, i]] + u[[j, i + 1]]);
+                    let ubar =
+                        0.25 * (u[[j - 1, i]] + u[[j - 1, i + 1]] + u[[j, i]] + u[[j, i + 1]]);
                     let (e, w) = coefficients(ubar, dx, nu);
                     let (n, s) = coefficients(c, dx, nu);
                     (ve[[j, i]], vw[[j, i]], vn[[j, i]], vs[[j, i]]) = (e, w, n, s);
@@ -345,12 +375,24 @@ impl WindField {
             }
             // Steady momentum residual with the current pressure.
             mac.add_gradient(&mut ru, &mut rv, &pressure, -1.0);
-            let residual = ru.iter().chain(rv.iter()).fold(0.0_f64, |m, &r| m.max(r.abs())) / scale;
+            let residual = ru
+                .iter()
+                .chain(rv.iter())
+                .fold(0.0_f64, |m, &r| m.max(r.abs()))
+                / scale;
             if !residual.is_finite() {
-                return Err(Error::Solver(format!("wind iteration diverged at step {step}")));
+                return Err(Error::Solver(format!(
+                    "wind iteration diverged at step {step}"
+                )));
             }
             if residual < config.tolerance {
-                return Ok(Self { u, v, cell: dx, steps: step, residual });
+                return Ok(Self {
+                    u,
+                    v,
+                    cell: dx,
+                    steps: step,
+                    residual,
+                });
             }
             // Delta form: (I - dt Ax)(I - dt Ay) delta = dt R, then project; p += phi / dt.
             ru *= dt;
@@ -380,7 +422,9 @@ impl WindField {
     /// Volumetric flux per unit depth (m^2/s) through each vertical grid line `x = i dx`,
     /// `i = 0..=nx`: the quantity that mass conservation keeps constant.
     pub fn section_fluxes(&self) -> Vec<f64> {
-        (0..self.u.ncols()).map(|i| self.u.column(i).sum() * self.cell).collect()
+        (0..self.u.ncols())
+            .map(|i| self.u.column(i).sum() * self.cell)
+            .collect()
     }
 
     /// Velocities at the cell centres, shape `[2, ny, nx]` (u then v), zero in obstacle cells.
@@ -398,7 +442,10 @@ impl WindField {
     /// Velocity (m/s) at a point by bilinear interpolation of the staggered components.
     pub fn velocity_at(&self, x: f64, y: f64) -> (f64, f64) {
         let h = self.cell;
-        (bilinear(&self.u, x / h, y / h - 0.5), bilinear(&self.v, x / h - 0.5, y / h))
+        (
+            bilinear(&self.u, x / h, y / h - 0.5),
+            bilinear(&self.v, x / h - 0.5, y / h),
+        )
     }
 }
 

@@ -70,8 +70,15 @@ pub fn render_field(field: &Array2<f64>, layout: &Layout, plot: &FieldPlot) -> R
     };
     for j in 0..ny {
         for i in 0..nx {
-            let colour = if layout.is_solid(j, i) { OBSTACLE } else { viridis(to_unit(field[[j, i]])) };
-            let (x0, y0) = (MARGIN + i as u32 * scale, TITLE_H + (ny - 1 - j) as u32 * scale);
+            let colour = if layout.is_solid(j, i) {
+                OBSTACLE
+            } else {
+                viridis(to_unit(field[[j, i]]))
+            };
+            let (x0, y0) = (
+                MARGIN + i as u32 * scale,
+                TITLE_H + (ny - 1 - j) as u32 * scale,
+            );
             fill(&mut img, x0, y0, scale, scale, colour);
         }
     }
@@ -85,7 +92,11 @@ pub fn render_field(field: &Array2<f64>, layout: &Layout, plot: &FieldPlot) -> R
     frame(&mut img, bar_x - 1, TITLE_H - 1, BAR_W + 2, map_h + 2);
     let label = |t: f64| {
         let v = lo + t * (hi - lo);
-        if plot.log { format!("{:.1e}", 10f64.powf(v)) } else { format!("{v:.3e}") }
+        if plot.log {
+            format!("{:.1e}", 10f64.powf(v))
+        } else {
+            format!("{v:.3e}")
+        }
     };
     let text_x = bar_x + BAR_W + 6;
     draw_text(&mut img, text_x, TITLE_H, &label(1.0));
@@ -104,8 +115,16 @@ pub fn render_field(field: &Array2<f64>, layout: &Layout, plot: &FieldPlot) -> R
 pub fn save_png(img: &RgbImage, path: &Path) -> Result<()> {
     io::write_atomic(path, |buf| {
         image::codecs::png::PngEncoder::new(buf)
-            .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
-            .map_err(|e| Error::Image { path: path.to_path_buf(), reason: e.to_string() })
+            .write_image(
+                img.as_raw(),
+                img.width(),
+                img.height(),
+                image::ExtendedColorType::Rgb8,
+            )
+            .map_err(|e| Error::Image {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            })
     })
 }
 
@@ -132,7 +151,9 @@ fn frame(img: &mut RgbImage, x0: u32, y0: u32, w: u32, h: u32) {
 /// Draws text with the public-domain 8x8 bitmap font (no system fonts needed).
 fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
     for (k, ch) in text.chars().enumerate() {
-        let Some(glyph) = font8x8::BASIC_FONTS.get(ch) else { continue };
+        let Some(glyph) = font8x8::BASIC_FONTS.get(ch) else {
+            continue;
+        };
         for (row, bits) in glyph.iter().enumerate() {
             for col in 0..8 {
                 if bits & (1 << col) != 0 {

@@ -1,0 +1,199 @@
+//! The binary: outputs of the main commands, and one clear error line for bad input.
+
+use std::process::{Command, Output};
+
+use ndarray::{Ix2, Ix3};
+use plumenet::io::read_npy;
+
+use crate::common::repo_path;
+
+fn plumenet(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_plumenet"))
+        .args(args)
+        .current_dir(repo_path(""))
+        .output()
+        .expect("binary runs")
+}
+
+fn assert_clean_failure(out: &Output, needle: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "expected failure, got success; stderr {stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert!(stderr.contains(needle), "expected {needle:?} in {stderr}");
+}
+
+const TUNNEL: &str = "data/layouts/wind-tunnel.json";
+
+#[test]
+fn simulate_writes_field_wind_png_and_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |n: &str| tmp.path().join(n).to_string_lossy().into_owned();
+    let out = plumenet(&[
+        "simulate",
+        "--layout",
+        TUNNEL,
+        "--source",
+        "3,2",
+        "--out",
+        &p("f.npy"),
+        "--wind-out",
+        &p("w.npy"),
+        "--png",
+        &p("f.png"),
+        "--log",
+        "--json",
+        &p("r.json"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let field = read_npy::<f32, Ix2>(&tmp.path().join("f.npy")).unwrap();
+    assert_eq!(field.dim(), (32, 144));
+    let wind = read_npy::<f32, Ix3>(&tmp.path().join("w.npy")).unwrap();
+    assert_eq!(wind.dim(), (2, 32, 144));
+    let png = image::open(tmp.path().join("f.png")).unwrap();
+    assert!(png.width() > 144 && png.height() > 32);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("r.json")).unwrap()).unwrap();
+    assert!((report["outlet_flux"].as_f64().unwrap() - 1.0).abs() < 0.02);
+}
+
+#[test]
+fn bank_writes_every_candidate() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("bank.npy");
+    let out = plumenet(&[
+        "bank",
+        "--solver",
+        "--layout",
+        TUNNEL,
+        "--out",
+        path.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bank = read_npy::<f32, Ix3>(&path).unwrap();
+    let cands = read_npy::<f32, Ix2>(&tmp.path().join("bank.candidates.npy")).unwrap();
+    assert_eq!(bank.dim(), (1112, 32, 144));
+    assert_eq!(cands.dim(), (1112, 2));
+}
+
+#[test]
+fn bad_input_gives_one_clear_error_line_and_no_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_path = tmp.path().join("f.npy");
+    let out = out_path.to_str().unwrap();
+    let bad_layout = tmp.path().join("bad.json");
+    std::fs::write(
+        &bad_layout,
+        r#"{"width_m": 18, "height_m": 4, "cell_m": 0.3, "wind": {"speed_mps": 1}}"#,
+    )
+    .unwrap();
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec![
+                "simulate", "--layout", TUNNEL, "--source", "7,1.2", "--out", out,
+            ],
+            "inside obstacle",
+        ),
+        (
+            vec![
+                "simulate", "--layout", TUNNEL, "--source", "30,1", "--out", out,
+            ],
+            "outside the arena",
+        ),
+        (
+            vec![
+                "simulate", "--layout", TUNNEL, "--source", "NaN,1", "--out", out,
+            ],
+            "finite",
+        ),
+        (
+            vec![
+                "simulate",
+                "--layout",
+                "nope.json",
+                "--source",
+                "3,2",
+                "--out",
+                out,
+            ],
+            "cannot read",
+        ),
+        (
+            vec![
+                "simulate",
+                "--layout",
+                bad_layout.to_str().unwrap(),
+                "--source",
+                "3,2",
+                "--out",
+                out,
+            ],
+            "does not divide",
+        ),
+        (
+            vec![
+                "simulate",
+                "--layout",
+                TUNNEL,
+                "--source",
+                "3,2",
+                "--out",
+                "/nonexistent/dir/f.npy",
+            ],
+            "cannot write",
+        ),
+        (
+            vec![
+                "simulate", "--layout", TUNNEL, "--source", "3;2", "--out", out,
+            ],
+            "expected X,Y",
+        ),
+        (
+            vec!["merge", "--out", out, "/nonexistent/shard"],
+            "cannot read",
+        ),
+        (
+            vec![
+                "generate",
+                "--out",
+                out,
+                "--layouts",
+                "2",
+                "--sources",
+                "1",
+                "--shard",
+                "3/2",
+            ],
+            "shard must be",
+        ),
+    ];
+    for (args, needle) in cases {
+        let result = plumenet(&args);
+        assert_clean_failure(&result, needle);
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        if result.status.code() == Some(1) {
+            // Our own errors (clap's usage errors exit with 2 and add a hint line).
+            assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: {stderr}");
+        }
+        assert!(!out_path.exists(), "{args:?} left an output file");
+    }
+}
+
+#[test]
+fn every_command_has_help() {
+    for cmd in ["simulate", "bank", "generate", "merge", "bench"] {
+        let out = plumenet(&[cmd, "--help"]);
+        assert!(out.status.success());
+        assert!(String::from_utf8_lossy(&out.stdout).contains("Usage"));
+    }
+}

@@ -1,0 +1,169 @@
+//! Dataset generation: determinism, shards + merge, manifest checks, random layouts.
+
+use std::path::Path;
+
+use ndarray::{Array1, Array3, Ix1, Ix3};
+use plumenet::dataset::{self, GenerateConfig, GenerateParams, Manifest, Shard};
+use plumenet::io::read_npy;
+use plumenet::layout::{Layout, LayoutSpec};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+fn base() -> LayoutSpec {
+    // A coarse grid keeps the tests fast; the code path is the same.
+    Layout::from_json(r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#)
+        .unwrap()
+        .spec()
+        .clone()
+}
+
+fn config(shard: Option<Shard>) -> GenerateConfig {
+    GenerateConfig {
+        base: base(),
+        layouts: 3,
+        sources_per_layout: 2,
+        seed: 11,
+        shard,
+        params: GenerateParams::default(),
+    }
+}
+
+fn bytes(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn same_seed_same_bytes_and_shards_merge_to_the_same_dataset() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    dataset::generate(&config(None), &a, &|| ()).unwrap();
+    dataset::generate(&config(None), &b, &|| ()).unwrap();
+    assert_eq!(bytes(&a), bytes(&b));
+    assert_eq!(
+        bytes(&a).len(),
+        8,
+        "7 arrays + manifest, no temporary files left"
+    );
+
+    let shards: Vec<_> = (0..2)
+        .map(|k| tmp.path().join(format!("shard{k}")))
+        .collect();
+    for (k, dir) in shards.iter().enumerate() {
+        dataset::generate(&config(Some(Shard { index: k, count: 2 })), dir, &|| ()).unwrap();
+    }
+    let merged = tmp.path().join("merged");
+    dataset::merge(&[shards[1].as_path(), shards[0].as_path()], &merged).unwrap();
+    assert_eq!(bytes(&a), bytes(&merged));
+
+    // A missing shard, or a shard of another dataset, is refused.
+    assert!(dataset::merge(&[shards[0].as_path()], &tmp.path().join("m2")).is_err());
+    let other = tmp.path().join("other");
+    let mut cfg = config(Some(Shard { index: 1, count: 2 }));
+    cfg.seed = 12;
+    dataset::generate(&cfg, &other, &|| ()).unwrap();
+    let err = dataset::merge(
+        &[shards[0].as_path(), other.as_path()],
+        &tmp.path().join("m3"),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("different dataset"), "{err}");
+}
+
+#[test]
+fn arrays_have_the_documented_shapes_and_contents() {
+    let tmp = tempfile::tempdir().unwrap();
+    let m = dataset::generate(&config(None), tmp.path(), &|| ()).unwrap();
+    assert_eq!(Manifest::load(tmp.path()).unwrap(), m);
+    let mask: Array3<f32> = read_npy::<f32, Ix3>(&tmp.path().join("obstacle_mask.npy")).unwrap();
+    let conc: Array3<f32> = read_npy::<f32, Ix3>(&tmp.path().join("concentration.npy")).unwrap();
+    let owner: Array1<u32> = read_npy::<u32, Ix1>(&tmp.path().join("source_layout.npy")).unwrap();
+    assert_eq!(mask.dim(), (3, 16, 72));
+    assert_eq!(conc.dim(), (6, 16, 72));
+    assert_eq!(owner.to_vec(), vec![0, 0, 1, 1, 2, 2]);
+    for s in 0..6 {
+        let l = owner[s] as usize;
+        for ((j, i), &c) in conc.index_axis(ndarray::Axis(0), s).indexed_iter() {
+            assert!(c.is_finite() && c >= -1e-6);
+            if mask[[l, j, i]] == 1.0 {
+                assert_eq!(c, 0.0);
+            }
+        }
+    }
+    for (k, spec) in m.layouts.iter().enumerate() {
+        let layout = spec.clone().check().unwrap();
+        let expected = layout.solid().mapv(|s| if s { 1.0 } else { 0.0 });
+        assert_eq!(mask.index_axis(ndarray::Axis(0), k), expected);
+    }
+}
+
+#[test]
+fn damaged_datasets_are_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    dataset::generate(&config(None), tmp.path(), &|| ()).unwrap();
+    let conc = tmp.path().join("concentration.npy");
+    let data = std::fs::read(&conc).unwrap();
+    std::fs::write(&conc, &data[..data.len() - 100]).unwrap();
+    let err = Manifest::load(tmp.path()).unwrap_err().to_string();
+    assert!(err.contains("concentration.npy"), "{err}");
+    std::fs::write(tmp.path().join("manifest.json"), "{ not json").unwrap();
+    assert!(Manifest::load(tmp.path()).is_err());
+    assert!(Manifest::load(&tmp.path().join("missing")).is_err());
+}
+
+#[test]
+fn random_layouts_are_valid_varied_and_never_block_the_channel() {
+    let params = GenerateParams::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let full = Layout::load(&crate::common::repo_path("data/layouts/wind-tunnel.json")).unwrap();
+    let mut counts = [0usize; 5];
+    let mut touching = 0;
+    for _ in 0..200 {
+        let l = dataset::random_layout(full.spec(), &params, &mut rng).unwrap();
+        let n = l.spec().obstacles.len();
+        counts[n] += 1;
+        touching += usize::from(
+            l.spec()
+                .obstacles
+                .iter()
+                .any(|o| o.y_min == 0.0 || o.y_max == 4.0),
+        );
+        for col in l.solid().columns() {
+            let free = col.iter().filter(|s| !**s).count() as f64 * l.cell();
+            assert!(free >= params.min_gap_m);
+        }
+    }
+    assert_eq!(counts[0], 0);
+    assert!(
+        counts[1..].iter().all(|&c| c > 20),
+        "obstacle counts {counts:?}"
+    );
+    assert!(
+        touching > 20 && touching < 200,
+        "{touching} layouts touch a side wall"
+    );
+}
+
+#[test]
+fn bad_generator_settings_are_rejected() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut c = config(None);
+    c.layouts = 0;
+    assert!(dataset::generate(&c, tmp.path(), &|| ()).is_err());
+    let mut c = config(Some(Shard { index: 0, count: 5 }));
+    c.layouts = 3;
+    assert!(dataset::generate(&c, tmp.path(), &|| ()).is_err());
+    for s in ["2/2", "a/b", "1", "0/0"] {
+        assert!(s.parse::<Shard>().is_err(), "{s}");
+    }
+}

@@ -1,0 +1,10 @@
+//! The one integration-test binary (each extra binary would re-link every dependency).
+
+mod common;
+
+mod cli;
+mod dataset;
+mod filament;
+mod layout;
+mod transport;
+mod wind;
