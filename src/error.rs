@@ -28,7 +28,7 @@ pub enum Error {
     #[error("invalid parameter: {0}")]
     Parameter(String),
     /// Reading or writing a file failed.
-    #[error("{action} {path}: {source}")]
+    #[error("{action} {path}")]
     Io {
         /// What was being done ("cannot read", "cannot write", ...).
         action: &'static str,
@@ -38,7 +38,7 @@ pub enum Error {
         source: std::io::Error,
     },
     /// A JSON document could not be parsed.
-    #[error("malformed JSON in {path}: {source}")]
+    #[error("malformed JSON in {path}")]
     Json {
         /// The file involved.
         path: PathBuf,

@@ -27,7 +27,7 @@ pub fn read_to_string(path: &Path) -> Result<String> {
 }
 
 /// Writes `bytes` produced by `fill` to `path` atomically: into a temporary file in the same
-/// directory, flushed and synced, then renamed over `path`.
+/// directory (created if missing), flushed and synced, then renamed over `path`.
 ///
 /// # Errors
 /// [`Error::Io`] when the directory is not writable or the disk is full; the temporary file is
@@ -50,6 +50,7 @@ pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut Vec<u8>) -> Result<()>) 
         .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
     let result = (|| {
+        fs::create_dir_all(&dir)?;
         let mut f = fs::File::create(&tmp)?;
         f.write_all(&bytes)?;
         f.sync_all()?;

@@ -19,7 +19,7 @@ fn assert_clean_failure(out: &Output, needle: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success(),
-        "expected failure, got success; stderr {stderr}"
+        "expected failure ({needle}), got success; stderr {stderr}"
     );
     assert!(!stderr.contains("panicked"), "panic: {stderr}");
     assert!(stderr.contains(needle), "expected {needle:?} in {stderr}");
@@ -97,6 +97,9 @@ fn bad_input_gives_one_clear_error_line_and_no_file() {
         r#"{"width_m": 18, "height_m": 4, "cell_m": 0.3, "wind": {"speed_mps": 1}}"#,
     )
     .unwrap();
+    let blocker = tmp.path().join("a-file");
+    std::fs::write(&blocker, "").unwrap();
+    let unwritable = blocker.join("f.npy");
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (
             vec![
@@ -148,7 +151,7 @@ fn bad_input_gives_one_clear_error_line_and_no_file() {
                 "--source",
                 "3,2",
                 "--out",
-                "/nonexistent/dir/f.npy",
+                unwritable.to_str().unwrap(),
             ],
             "cannot write",
         ),
