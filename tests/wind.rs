@@ -1,6 +1,6 @@
 //! Wind: uniform flow in an empty arena, mass conservation, no flow through obstacles.
 
-use plumenet::physics::wind::WindField;
+use plumenet::physics::wind::{WindConfig, WindField};
 
 use crate::common::{empty_tunnel, wind_tunnel};
 
@@ -15,7 +15,7 @@ fn empty_arena_gives_exactly_uniform_wind() {
 fn mass_is_conserved_across_every_section_and_obstacles_are_impermeable() {
     let l = wind_tunnel();
     let w = WindField::solve(&l).unwrap();
-    assert!(w.residual < 1e-4);
+    assert!(w.residual < WindConfig::default().tolerance);
     let inflow = 0.75 * l.height();
     for (i, flux) in w.section_fluxes().iter().enumerate() {
         assert!(
@@ -47,4 +47,22 @@ fn interpolated_velocity_matches_the_faces() {
     // u face (j = 16, i = 40) sits at x = 5.0, y = 2.0625.
     let (u, _) = w.velocity_at(5.0, 2.0625);
     assert!((u - w.u[[16, 40]]).abs() < 1e-12);
+}
+
+#[test]
+fn default_tolerance_is_close_to_the_fully_converged_flow() {
+    let l = wind_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    let tight = WindConfig {
+        tolerance: 1e-7,
+        ..WindConfig::default()
+    };
+    let reference = WindField::solve_with(&l, &tight).unwrap();
+    assert!(reference.steps > w.steps);
+    let diff =
+        w.u.iter()
+            .zip(&reference.u)
+            .chain(w.v.iter().zip(&reference.v))
+            .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(diff < 1e-4 * 0.75, "max velocity difference {diff} m/s");
 }

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::physics::scheme::Scheme;
-use crate::physics::sparse::{SparseLu, assemble};
+use crate::physics::sparse::{SparseLu, Workload, assemble};
 use crate::physics::wind::WindField;
 
 /// Number of right-hand sides solved together in a bank (fixed, so results do not depend on
@@ -130,7 +130,7 @@ impl Transport {
             }
         }
         let matrix = assemble(n, &trip)?;
-        let lu = SparseLu::factorize(&matrix)?;
+        let lu = SparseLu::factorize(&matrix, Workload::Blocks)?;
         Ok(Self {
             shape: (ny, nx),
             cell: h,
