@@ -319,6 +319,20 @@ impl Layout {
         self.solid[[j, i]]
     }
 
+    /// Numbers the free cells in row-major order: returns the index grid (`usize::MAX` in
+    /// obstacle cells) and the number of free cells. Solvers use it to map cells to unknowns.
+    pub fn free_cell_index(&self) -> (Array2<usize>, usize) {
+        let mut index = Array2::from_elem((self.ny, self.nx), usize::MAX);
+        let mut n = 0;
+        for (idx, &solid) in index.iter_mut().zip(&self.solid) {
+            if !solid {
+                *idx = n;
+                n += 1;
+            }
+        }
+        (index, n)
+    }
+
     /// Centre of cell `(j, i)` in metres.
     pub fn cell_centre(&self, j: usize, i: usize) -> (f64, f64) {
         cell_centre(self.cell(), i, j)

@@ -16,6 +16,8 @@
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`report`] (PNG rendering), [`io`] (atomic files), [`bench`] (timings).
 
+#![warn(missing_docs)]
+
 pub mod bench;
 pub mod dataset;
 pub mod error;

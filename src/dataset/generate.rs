@@ -215,6 +215,8 @@ pub fn source_encoding(layout: &Layout, [x, y]: [f64; 2]) -> Array2<f32> {
 }
 
 /// Generates a dataset (or one shard of it) into `out`, calling `progress` after each layout.
+/// A directory that already holds the complete output of the same configuration is left as it
+/// is, so an interrupted sharded run is resumed by re-running every shard command.
 ///
 /// # Errors
 /// [`Error::Parameter`] for bad settings, [`Error::Solver`] if a layout cannot be solved,
@@ -225,6 +227,21 @@ pub fn generate(
     progress: &(dyn Fn() + Sync),
 ) -> Result<Manifest> {
     config.check()?;
+    if let Ok(done) = Manifest::load(out)
+        && done.seed == config.seed
+        && done.layouts_total == config.layouts
+        && done.sources_per_layout == config.sources_per_layout
+        && done.params == config.params
+        && done.base
+            == (LayoutSpec {
+                obstacles: Vec::new(),
+                ..config.base.clone()
+            })
+        && done.shard.map(|s| (s.index, s.count)) == config.shard.map(|s| (s.index, s.count))
+    {
+        // Already complete (a re-run after an interruption elsewhere): nothing to redo.
+        return Ok(done);
+    }
     io::create_dir_all(out)?;
     let range = config.layout_range();
     let samples = range

@@ -75,14 +75,7 @@ impl Transport {
                 (ny, nx)
             )));
         }
-        let mut index = Array2::from_elem((ny, nx), usize::MAX);
-        let mut n = 0;
-        for ((j, i), idx) in index.indexed_iter_mut() {
-            if !layout.is_solid(j, i) {
-                *idx = n;
-                n += 1;
-            }
-        }
+        let (index, n) = layout.free_cell_index();
         let h = layout.cell();
         let d = layout.diffusivity();
         let mut trip = Vec::with_capacity(5 * n);

@@ -112,14 +112,7 @@ impl<'a> Mac<'a> {
             let blocked = j == 0 || j == ny || solid(j - 1, i) || solid(j, i);
             if blocked { Face::Fixed } else { Face::Free }
         });
-        let mut p_index = Array2::from_elem((ny, nx), usize::MAX);
-        let mut n_p = 0;
-        for ((j, i), idx) in p_index.indexed_iter_mut() {
-            if !solid(j, i) {
-                *idx = n_p;
-                n_p += 1;
-            }
-        }
+        let (p_index, n_p) = layout.free_cell_index();
         // -dx^2 * div(grad p): positive definite thanks to p = 0 at the outlet.
         let mut trip = Vec::with_capacity(5 * n_p);
         for j in 0..ny {
