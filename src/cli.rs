@@ -13,7 +13,11 @@ use plumenet::dataset::{self, GenerateConfig, GenerateParams, Shard};
 use plumenet::layout::Layout;
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
+use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::{FieldPlot, render_field, save_png};
+use plumenet::surrogate::data::SourceEncoding;
+use plumenet::surrogate::eval::evaluate;
+use plumenet::surrogate::{Surrogate, TrainEvent, TrainingConfig, TrainingData};
 use plumenet::{bench, io};
 
 /// Calibration-free gas source localisation: dispersion simulator, datasets and plume banks.
@@ -36,6 +40,87 @@ enum Command {
     Merge(MergeArgs),
     /// Time wind, factorisation, one source and the whole bank against scipy's SuperLU.
     Bench(BenchArgs),
+    /// Train PlumeNet on a dataset (resumes an interrupted run in the same --out).
+    Train(TrainArgs),
+    /// Predict one field with a trained PlumeNet.
+    Predict(PredictArgs),
+    /// Accuracy of a trained PlumeNet on a dataset (relative L2, Spearman rho).
+    Eval(EvalArgs),
+}
+
+#[derive(Debug, Args)]
+struct TrainArgs {
+    /// Dataset directory (from `plumenet generate`, merged if sharded).
+    #[arg(long)]
+    data: PathBuf,
+    /// Output model directory (weights.bpk + config.json), e.g. models/NAME.
+    #[arg(long)]
+    out: PathBuf,
+    /// Maximum epochs.
+    #[arg(long, default_value_t = 30)]
+    epochs: usize,
+    /// Samples per batch.
+    #[arg(long, default_value_t = 16)]
+    batch_size: usize,
+    /// Seed of initialisation and shuffling.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Source encoding of the inputs.
+    #[arg(long, value_enum, default_value_t = EncodingArg::Gaussian)]
+    encoding: EncodingArg,
+    /// Stop after this many epochs without validation improvement.
+    #[arg(long, default_value_t = 6)]
+    patience: usize,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum EncodingArg {
+    Gaussian,
+    Distance,
+}
+
+#[derive(Debug, Args)]
+struct PredictArgs {
+    /// Model directory.
+    #[arg(long)]
+    model: PathBuf,
+    /// Layout JSON file.
+    #[arg(long)]
+    layout: PathBuf,
+    /// Source position in metres, "X,Y".
+    #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
+    source: (f64, f64),
+    /// Output field (.npy, f32, [H, W]).
+    #[arg(long)]
+    out: PathBuf,
+    /// Also draw the field as a PNG.
+    #[arg(long)]
+    png: Option<PathBuf>,
+    /// Logarithmic colour scale in the PNG.
+    #[arg(long)]
+    log: bool,
+}
+
+#[derive(Debug, Args)]
+struct EvalArgs {
+    /// Model directory.
+    #[arg(long)]
+    model: PathBuf,
+    /// Dataset directory (use layouts the model never saw: another --seed).
+    #[arg(long)]
+    data: PathBuf,
+    /// Write per-map scores and the summary as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Sampled free cells per map for Spearman rho.
+    #[arg(long, default_value_t = 500)]
+    points: usize,
+    /// Seed of the point sampling.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// PNG comparing prediction, physics and error for the first maps.
+    #[arg(long)]
+    png: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -64,10 +149,14 @@ struct SimulateArgs {
 }
 
 #[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("plume").required(true).args(["solver", "model"])))]
 struct BankArgs {
     /// Use the physics solver as plume model.
-    #[arg(long, required = true)]
+    #[arg(long)]
     solver: bool,
+    /// Use a trained PlumeNet (model directory) as plume model.
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Layout JSON file.
     #[arg(long)]
     layout: PathBuf,
@@ -153,6 +242,15 @@ fn progress_bar(len: usize, what: &str) -> ProgressBar {
     bar
 }
 
+/// Prints a line above the progress bar, or plainly when the bar is hidden (output to a file).
+fn say(bar: &ProgressBar, line: String) {
+    if bar.is_hidden() {
+        println!("{line}")
+    } else {
+        bar.println(line)
+    }
+}
+
 impl Cli {
     /// Runs the chosen command.
     pub fn run(self) -> Result<()> {
@@ -162,6 +260,9 @@ impl Cli {
             Command::Generate(a) => generate(a),
             Command::Merge(a) => merge(a),
             Command::Bench(a) => run_bench(a),
+            Command::Train(a) => train(a),
+            Command::Predict(a) => predict(a),
+            Command::Eval(a) => eval(a),
         }
     }
 }
@@ -215,8 +316,11 @@ fn bank(a: BankArgs) -> Result<()> {
             a.spacing
         );
     }
-    let wind = WindField::solve(&layout)?;
-    let bank = Transport::new(&layout, &wind)?.bank(&candidates)?;
+    let model: Box<dyn PlumeModel> = match &a.model {
+        Some(dir) => Box::new(Surrogate::load(dir)?),
+        None => Box::new(PhysicsSolver),
+    };
+    let bank = model.bank(&layout, &candidates)?.fields;
     let cand = Array2::from_shape_fn((candidates.len(), 2), |(k, d)| candidates[k][d] as f32);
     let cand_path = a.out.with_extension("candidates.npy");
     io::write_npy(&a.out, &bank)?;
@@ -345,4 +449,127 @@ fn tempfile_dir() -> Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("plumenet-bench-{}", std::process::id()));
     io::create_dir_all(&dir)?;
     Ok(dir)
+}
+
+fn train(a: TrainArgs) -> Result<()> {
+    let data = TrainingData::load(&a.data)?;
+    let config = TrainingConfig {
+        epochs: a.epochs,
+        batch_size: a.batch_size,
+        seed: a.seed,
+        patience: a.patience,
+        encoding: match a.encoding {
+            EncodingArg::Gaussian => SourceEncoding::Gaussian,
+            EncodingArg::Distance => SourceEncoding::Distance,
+        },
+        ..TrainingConfig::default()
+    };
+    let bar = progress_bar(0, "epoch");
+    let mut running = (0.0, 0usize);
+    let state = plumenet::surrogate::train(&data, &config, &a.out, &mut |event| match event {
+        TrainEvent::Start { epoch, batches } => {
+            bar.set_length(batches as u64);
+            bar.set_message(format!("epoch {epoch}/{}", config.epochs));
+            if epoch > 1 {
+                say(&bar, format!("resuming at epoch {epoch}"));
+            }
+        }
+        TrainEvent::Batch(loss) => {
+            running = (running.0 + loss, running.1 + 1);
+            bar.inc(1);
+            bar.set_message(format!("loss {:.4}", running.0 / running.1 as f64));
+        }
+        TrainEvent::Epoch(e) => {
+            say(
+                &bar,
+                format!(
+                    "epoch {:3}  train {:.5}  validation {:.5}",
+                    e.epoch, e.train, e.validation
+                ),
+            );
+            bar.reset();
+            running = (0.0, 0);
+        }
+    })?;
+    bar.finish_and_clear();
+    if let Some(best) = state.best {
+        println!(
+            "best epoch {} (validation loss {:.5}); model in {}",
+            best.epoch,
+            best.validation,
+            a.out.display()
+        );
+    }
+    Ok(())
+}
+
+fn predict(a: PredictArgs) -> Result<()> {
+    let layout = Layout::load(&a.layout)?;
+    let model = Surrogate::load(&a.model)?;
+    let field = model.predict(&layout, [a.source.0, a.source.1])?;
+    io::write_npy(&a.out, &field.mapv(|v| v as f32))?;
+    if let Some(path) = &a.png {
+        let title = format!(
+            "PlumeNet prediction, source ({}, {}) m",
+            a.source.0, a.source.1
+        );
+        let plot = FieldPlot {
+            title,
+            log: a.log,
+            unit: "units/m2".into(),
+        };
+        save_png(&render_field(&field, &layout, &plot)?, path)?;
+    }
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+fn eval(a: EvalArgs) -> Result<()> {
+    let model = Surrogate::load(&a.model)?;
+    let data = TrainingData::load(&a.data)?;
+    if data.digest == model.saved().dataset_digest {
+        eprintln!(
+            "warning: this is the model's training dataset; use unseen layouts for an honest score"
+        );
+    }
+    let (scores, summary) = evaluate(&model, &data, a.points, a.seed)?;
+    println!(
+        "{} maps: median relative L2 {:.4} (p90 {:.4}), median Spearman {:.4} (p10 {:.4})",
+        summary.maps,
+        summary.median_relative_l2,
+        summary.p90_relative_l2,
+        summary.median_spearman,
+        summary.p10_spearman
+    );
+    if let Some(path) = &a.json {
+        io::write_json(path, &json!({ "summary": summary, "maps": scores }))?;
+    }
+    if let Some(path) = &a.png {
+        let mut panels = Vec::new();
+        for score in scores.iter().take(3) {
+            let s = score.sample;
+            let layout = data.manifest.layouts[data.source_layout[s]]
+                .clone()
+                .check()?;
+            let truth = data.concentration.index_axis(Axis(0), s).mapv(f64::from);
+            let pred = model.predict(&layout, data.source_xy[s])?;
+            let error = &pred - &truth;
+            let title = |what: &str| format!("map {s}: {what}");
+            let log = |t: String| FieldPlot {
+                title: t,
+                log: true,
+                unit: "units/m2".into(),
+            };
+            panels.push(render_field(&pred, &layout, &log(title("PlumeNet")))?);
+            panels.push(render_field(&truth, &layout, &log(title("physics")))?);
+            let lin = FieldPlot {
+                title: title("PlumeNet - physics"),
+                log: false,
+                unit: "units/m2".into(),
+            };
+            panels.push(render_field(&error, &layout, &lin)?);
+        }
+        save_png(&plumenet::report::stack_vertical(&panels), path)?;
+    }
+    Ok(())
 }

@@ -53,6 +53,9 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// A trained model is missing, damaged, foreign, or made for another grid.
+    #[error("model: {0}")]
+    Model(String),
     /// A PNG could not be encoded.
     #[error("cannot encode image {path}: {reason}")]
     Image {

@@ -24,7 +24,9 @@ pub mod error;
 pub mod io;
 pub mod layout;
 pub mod physics;
+pub mod plume;
 pub mod report;
+pub mod surrogate;
 
 pub use error::{Error, Result};
 pub use layout::Layout;

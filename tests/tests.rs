@@ -6,5 +6,6 @@ mod cli;
 mod dataset;
 mod filament;
 mod layout;
+mod surrogate;
 mod transport;
 mod wind;

@@ -166,3 +166,18 @@ fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
         }
     }
 }
+
+/// Stacks images top to bottom on a white background (for side-by-side comparisons).
+pub fn stack_vertical(images: &[RgbImage]) -> RgbImage {
+    let width = images.iter().map(RgbImage::width).max().unwrap_or(1);
+    let height = images.iter().map(RgbImage::height).sum::<u32>().max(1);
+    let mut out = RgbImage::from_pixel(width, height, WHITE);
+    let mut top = 0;
+    for img in images {
+        for (x, y, p) in img.enumerate_pixels() {
+            out.put_pixel(x, top + y, *p);
+        }
+        top += img.height();
+    }
+    out
+}

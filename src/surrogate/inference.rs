@@ -1,0 +1,274 @@
+//! A trained PlumeNet on disk (`weights.bpk` + `config.json`), loaded for prediction and banks.
+
+use std::path::{Path, PathBuf};
+
+use burn::module::Module;
+use burn::prelude::*;
+use burn::store::ModuleRecord;
+use ndarray::{Array2, Array3};
+use serde::{Deserialize, Serialize};
+
+use super::data::{
+    INPUT_CHANNELS, Normalization, SourceEncoding, TrainingData, encode_input, layout_planes,
+    sha256_hex,
+};
+use super::model::{PlumeNet, PlumeNetConfig};
+use super::training::{TrainState, TrainingConfig};
+use crate::error::{Error, Result};
+use crate::io;
+use crate::layout::Layout;
+use crate::plume::{PlumeBank, PlumeModel};
+
+/// Format tag of `config.json`.
+pub const MODEL_FORMAT: &str = "plumenet-model-v1";
+/// Samples per forward pass in a bank (bounds memory: about 40 MB of activations per sample
+/// chunk of 64 on the default grid).
+pub const BANK_CHUNK: usize = 64;
+
+/// `config.json` of a trained model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedModel {
+    /// Always [`MODEL_FORMAT`].
+    pub format: String,
+    /// Architecture.
+    pub architecture: PlumeNetConfig,
+    /// Grid `[H, W]` the model was trained for.
+    pub grid: [usize; 2],
+    /// Cell size (m) of that grid.
+    pub cell_m: f64,
+    /// Source encoding of the inputs.
+    pub encoding: SourceEncoding,
+    /// Input and target scales.
+    pub normalization: Normalization,
+    /// SHA-256 of the training dataset's `manifest.json`.
+    pub dataset_digest: String,
+    /// The training configuration.
+    pub training: TrainingConfig,
+    /// Losses per epoch, and the best (kept) epoch.
+    pub history: Vec<super::training::EpochLoss>,
+    /// The kept epoch.
+    pub best: Option<super::training::EpochLoss>,
+    /// SHA-256 of `weights.bpk`.
+    pub weights_digest: String,
+}
+
+impl SavedModel {
+    /// The description of a model trained with `config` on `data`, as of `state`.
+    pub fn new(config: &TrainingConfig, data: &TrainingData, state: &TrainState) -> Self {
+        Self {
+            format: MODEL_FORMAT.into(),
+            architecture: config.model.clone(),
+            grid: data.grid(),
+            cell_m: data.cell(),
+            encoding: config.encoding,
+            normalization: config.normalization,
+            dataset_digest: data.digest.clone(),
+            training: config.clone(),
+            history: state.history.clone(),
+            best: state.best,
+            weights_digest: String::new(),
+        }
+    }
+
+    /// Writes `weights.bpk` then `config.json` (both atomically) into `dir`.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when `dir` is not writable, [`Error::Model`] when serialisation fails.
+    pub fn write(mut self, dir: &Path, net: &PlumeNet) -> Result<()> {
+        let bytes = weights_bytes(net)?;
+        self.weights_digest = sha256_hex(&bytes);
+        io::write_atomic(&dir.join("weights.bpk"), |b| {
+            b.extend_from_slice(&bytes);
+            Ok(())
+        })?;
+        io::write_json(&dir.join("config.json"), &self)
+    }
+}
+
+/// Serialises a network's parameters to burnpack bytes.
+///
+/// # Errors
+/// [`Error::Model`] when Burn cannot serialise the record.
+pub fn weights_bytes(net: &PlumeNet) -> Result<Vec<u8>> {
+    let bytes = net
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| Error::Model(format!("cannot serialise weights: {e:?}")))?;
+    Ok(bytes.to_vec())
+}
+
+/// Loads burnpack weights into a network of the matching architecture.
+///
+/// # Errors
+/// [`Error::Io`] when unreadable, [`Error::Model`] for a truncated, foreign or mismatched file.
+pub fn load_weights(net: PlumeNet, path: &Path) -> Result<PlumeNet> {
+    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+        action: "cannot read",
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let record =
+        ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes)).map_err(|e| {
+            Error::Model(format!(
+                "{} is not a PlumeNet weights file: {e:?}",
+                path.display()
+            ))
+        })?;
+    net.try_load_record(record).map_err(|e| {
+        Error::Model(format!(
+            "{} does not fit this architecture: {e:?}",
+            path.display()
+        ))
+    })
+}
+
+/// A loaded PlumeNet ready for inference.
+#[derive(Debug)]
+pub struct Surrogate {
+    net: PlumeNet,
+    saved: SavedModel,
+    dir: PathBuf,
+    device: Device,
+}
+
+impl Surrogate {
+    /// Loads `dir/config.json` and `dir/weights.bpk`, checking format and weights digest.
+    ///
+    /// # Errors
+    /// [`Error::Io`]/[`Error::Json`] for missing or malformed files, [`Error::Model`] for another
+    /// format, a weights file that does not match its digest (truncated or replaced) or does not
+    /// fit the architecture.
+    pub fn load(dir: &Path) -> Result<Self> {
+        let saved: SavedModel = io::read_json(&dir.join("config.json"))?;
+        if saved.format != MODEL_FORMAT {
+            return Err(Error::Model(format!(
+                "{}: format {:?} is not {MODEL_FORMAT}",
+                dir.display(),
+                saved.format
+            )));
+        }
+        let weights = dir.join("weights.bpk");
+        let bytes = std::fs::read(&weights).map_err(|source| Error::Io {
+            action: "cannot read",
+            path: weights.clone(),
+            source,
+        })?;
+        if sha256_hex(&bytes) != saved.weights_digest {
+            return Err(Error::Model(format!(
+                "{} does not match the digest in config.json (truncated or replaced)",
+                weights.display()
+            )));
+        }
+        let device = super::backend::device();
+        let net = load_weights(saved.architecture.init(&device), &weights)?;
+        Ok(Self {
+            net,
+            saved,
+            dir: dir.to_path_buf(),
+            device,
+        })
+    }
+
+    /// The network.
+    pub fn net(&self) -> &PlumeNet {
+        &self.net
+    }
+
+    /// The saved configuration.
+    pub fn saved(&self) -> &SavedModel {
+        &self.saved
+    }
+
+    /// Checks that the model was trained for this layout's grid.
+    ///
+    /// # Errors
+    /// [`Error::Model`] naming both grids.
+    pub fn check_layout(&self, layout: &Layout) -> Result<()> {
+        let grid = [layout.ny(), layout.nx()];
+        if grid != self.saved.grid || (layout.cell() - self.saved.cell_m).abs() > 1e-12 {
+            return Err(Error::Model(format!(
+                "model {} was trained for a {:?} grid of {} m cells; the layout has {:?} cells of {} m",
+                self.dir.display(),
+                self.saved.grid,
+                self.saved.cell_m,
+                grid,
+                layout.cell()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Predicted fields `[N, H, W]` for sources in `layout`, in forward passes of
+    /// [`BANK_CHUNK`] samples.
+    ///
+    /// # Errors
+    /// [`Error::Model`] for another grid, [`Error::Source`] for a source outside free space.
+    pub fn predict_many(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Array3<f32>> {
+        self.check_layout(layout)?;
+        for &[x, y] in sources {
+            layout.check_source(x, y)?;
+        }
+        let (h, w) = layout.shape();
+        let plane = h * w;
+        let (mask, sdf) = layout_planes(layout);
+        let norm = self.saved.normalization;
+        let mut out = Array3::<f32>::zeros((sources.len(), h, w));
+        for (c, chunk) in sources.chunks(BANK_CHUNK).enumerate() {
+            let mut input = vec![0.0f32; chunk.len() * INPUT_CHANNELS * plane];
+            for (n, &src) in chunk.iter().enumerate() {
+                let slot = &mut input[n * INPUT_CHANNELS * plane..(n + 1) * INPUT_CHANNELS * plane];
+                encode_input(
+                    mask.view(),
+                    sdf.view(),
+                    src,
+                    layout.cell(),
+                    self.saved.encoding,
+                    &norm,
+                    slot,
+                );
+            }
+            let x = Tensor::<4>::from_data(
+                TensorData::new(input, [chunk.len(), INPUT_CHANNELS, h, w]),
+                &self.device,
+            );
+            let y = self.net.forward(x).into_data();
+            let values = y
+                .try_to_vec::<f32>()
+                .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))?;
+            for (k, v) in values.into_iter().enumerate() {
+                let (n, rest) = (k / plane, k % plane);
+                let (j, i) = (rest / w, rest % w);
+                out[[c * BANK_CHUNK + n, j, i]] = if mask[[j, i]] > 0.5 {
+                    0.0
+                } else {
+                    norm.inverse(v)
+                };
+            }
+        }
+        Ok(out)
+    }
+
+    /// Predicted field `[H, W]` of one source.
+    ///
+    /// # Errors
+    /// As [`Surrogate::predict_many`].
+    pub fn predict(&self, layout: &Layout, source: [f64; 2]) -> Result<Array2<f64>> {
+        let many = self.predict_many(layout, &[source])?;
+        Ok(many.index_axis(ndarray::Axis(0), 0).mapv(f64::from))
+    }
+}
+
+impl PlumeModel for Surrogate {
+    fn name(&self) -> String {
+        format!("plumenet:{}", self.dir.display())
+    }
+
+    fn bank(&self, layout: &Layout, candidates: &[[f64; 2]]) -> Result<PlumeBank> {
+        Ok(PlumeBank {
+            candidates: candidates.to_vec(),
+            fields: self.predict_many(layout, candidates)?,
+        })
+    }
+}

@@ -1,0 +1,16 @@
+//! PlumeNet, the data-driven plume model (DDPM in the paper: a CNN, not a diffusion model):
+//! architecture ([`model`]), input encoding and batches ([`data`]), training ([`training`]) and
+//! loading, prediction and banks ([`inference`]). Tensors meet ndarray only in [`data`] and
+//! [`inference`].
+
+pub mod backend;
+pub mod data;
+pub mod eval;
+pub mod inference;
+pub mod model;
+pub mod training;
+
+pub use data::{Normalization, SourceEncoding, TrainingData};
+pub use inference::{SavedModel, Surrogate};
+pub use model::{PlumeNet, PlumeNetConfig};
+pub use training::{TrainEvent, TrainingConfig, train};

@@ -1,0 +1,145 @@
+//! PlumeNet: DeepCFD's UNetEx as a Burn module.
+//!
+//! Encoder: at each level a block of `convs_per_level` 5x5 convolutions ("same" padding, ReLU)
+//! with `filters[level]` channels, then a 2x2 max-pool (none after the deepest level). Decoder:
+//! a 2x2 stride-2 transposed convolution up, concatenation with the encoder's skip tensor at that
+//! level, and a block of 5x5 convolutions with ReLU. A final 1x1 convolution gives one channel
+//! with no activation. Inputs whose sides are not multiples of `2^(levels - 1)` are padded with
+//! zeros and the output is cropped back, so any grid works.
+
+use burn::module::Module;
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
+use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+/// Architecture of PlumeNet (saved in `config.json`).
+#[derive(Config, Debug, PartialEq)]
+pub struct PlumeNetConfig {
+    /// Input channels (see [`crate::surrogate::InputEncoding`]).
+    #[config(default = 3)]
+    pub in_channels: usize,
+    /// Channels per level, shallow to deep (DeepCFD: `[8, 16, 32, 32]`).
+    #[config(default = "vec![8, 16, 32, 32]")]
+    pub filters: Vec<usize>,
+    /// Square kernel size of the convolutions (DeepCFD: 5).
+    #[config(default = 5)]
+    pub kernel_size: usize,
+    /// Convolutions per block (DeepCFD: 3).
+    #[config(default = 3)]
+    pub convs_per_level: usize,
+}
+
+/// A block of convolutions with ReLU.
+#[derive(Module, Debug)]
+pub struct ConvBlock {
+    convs: Vec<Conv2d>,
+}
+
+impl ConvBlock {
+    fn new(cin: usize, cout: usize, kernel: usize, count: usize, device: &Device) -> Self {
+        let convs = (0..count)
+            .map(|k| {
+                Conv2dConfig::new([if k == 0 { cin } else { cout }, cout], [kernel, kernel])
+                    .with_padding(PaddingConfig2d::Same)
+                    .init(device)
+            })
+            .collect();
+        Self { convs }
+    }
+
+    fn forward(&self, mut x: Tensor<4>) -> Tensor<4> {
+        for conv in &self.convs {
+            x = relu(conv.forward(x));
+        }
+        x
+    }
+}
+
+/// The U-Net.
+#[derive(Module, Debug)]
+pub struct PlumeNet {
+    encoders: Vec<ConvBlock>,
+    pool: MaxPool2d,
+    ups: Vec<ConvTranspose2d>,
+    decoders: Vec<ConvBlock>,
+    head: Conv2d,
+}
+
+impl PlumeNetConfig {
+    /// Builds the network with freshly initialised weights on `device`.
+    pub fn init(&self, device: &Device) -> PlumeNet {
+        let k = self.kernel_size;
+        let n = self.convs_per_level;
+        let f = &self.filters;
+        let encoders = f
+            .iter()
+            .enumerate()
+            .map(|(l, &c)| {
+                ConvBlock::new(
+                    if l == 0 { self.in_channels } else { f[l - 1] },
+                    c,
+                    k,
+                    n,
+                    device,
+                )
+            })
+            .collect();
+        // Decoder level l (from deep to shallow) goes from f[l + 1] channels up to f[l].
+        let ups = (0..f.len() - 1)
+            .rev()
+            .map(|l| {
+                ConvTranspose2dConfig::new([f[l + 1], f[l]], [2, 2])
+                    .with_stride([2, 2])
+                    .init(device)
+            })
+            .collect();
+        let decoders = (0..f.len() - 1)
+            .rev()
+            .map(|l| ConvBlock::new(2 * f[l], f[l], k, n, device))
+            .collect();
+        PlumeNet {
+            encoders,
+            pool: MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init(),
+            ups,
+            decoders,
+            head: Conv2dConfig::new([f[0], 1], [1, 1]).init(device),
+        }
+    }
+}
+
+impl PlumeNet {
+    /// `[B, in_channels, H, W]` inputs to `[B, 1, H, W]` transformed concentrations.
+    pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
+        let [b, _, h, w] = input.dims();
+        let multiple = 1 << (self.encoders.len() - 1);
+        let (ph, pw) = (
+            h.div_ceil(multiple) * multiple - h,
+            w.div_ceil(multiple) * multiple - w,
+        );
+        let mut x = if ph + pw > 0 {
+            input.pad((0, pw, 0, ph), 0.0)
+        } else {
+            input
+        };
+        let mut skips = Vec::with_capacity(self.encoders.len());
+        for (l, enc) in self.encoders.iter().enumerate() {
+            x = enc.forward(x);
+            if l + 1 < self.encoders.len() {
+                skips.push(x.clone());
+                x = self.pool.forward(x);
+            }
+        }
+        for (up, dec) in self.ups.iter().zip(&self.decoders) {
+            let skip = skips.pop().expect("one skip per decoder level");
+            x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1));
+        }
+        let out = self.head.forward(x);
+        if ph + pw > 0 {
+            out.slice([0..b, 0..1, 0..h, 0..w])
+        } else {
+            out
+        }
+    }
+}

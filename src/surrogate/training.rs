@@ -1,0 +1,305 @@
+//! Training PlumeNet: AdamW, a train/validation split by layout, best-checkpoint keeping, early
+//! stopping and resumption after an interruption.
+//!
+//! `out/` receives `weights.bpk` (burnpack) and `config.json` whenever the validation loss
+//! improves (both written atomically), and `out/checkpoint/` the latest epoch's model, optimizer
+//! state and progress, from which an interrupted run resumes with identical results. Re-running
+//! with a higher `epochs` continues a finished run.
+
+use std::path::Path;
+
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::prelude::*;
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::data::{Normalization, SourceEncoding, TrainingData};
+use super::inference::{SavedModel, Surrogate, load_weights, weights_bytes};
+use super::model::{PlumeNet, PlumeNetConfig};
+use crate::error::{Error, Result};
+use crate::io;
+
+/// Everything that defines a training run (saved in `config.json` and the checkpoint).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingConfig {
+    /// Architecture.
+    pub model: PlumeNetConfig,
+    /// Maximum epochs.
+    pub epochs: usize,
+    /// Samples per batch.
+    pub batch_size: usize,
+    /// AdamW learning rate (DeepCFD: 1e-3).
+    pub learning_rate: f64,
+    /// AdamW weight decay (DeepCFD: 0.005).
+    pub weight_decay: f32,
+    /// Share of layouts held out for validation.
+    pub validation_fraction: f64,
+    /// Stop after this many epochs without a better validation loss.
+    pub patience: usize,
+    /// Seed of the weight initialisation and the shuffling.
+    pub seed: u64,
+    /// Source encoding of the inputs.
+    pub encoding: SourceEncoding,
+    /// Input and target scales.
+    pub normalization: Normalization,
+}
+
+impl Default for TrainingConfig {
+    fn default() -> Self {
+        Self {
+            model: PlumeNetConfig::new(),
+            epochs: 30,
+            batch_size: 16,
+            learning_rate: 1e-3,
+            weight_decay: 0.005,
+            validation_fraction: 0.1,
+            patience: 6,
+            seed: 0,
+            encoding: SourceEncoding::default(),
+            normalization: Normalization::default(),
+        }
+    }
+}
+
+/// Per-epoch losses (mean squared error of the transformed target over free cells).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EpochLoss {
+    /// Epoch number, from 1.
+    pub epoch: usize,
+    /// Mean training loss.
+    pub train: f64,
+    /// Validation loss (unseen layouts).
+    pub validation: f64,
+}
+
+/// Progress of a run, saved in the checkpoint.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainState {
+    /// Configuration of the run (a resume must match it).
+    pub config: TrainingConfig,
+    /// Dataset digest (a resume must match it).
+    pub dataset_digest: String,
+    /// Losses of the finished epochs.
+    pub history: Vec<EpochLoss>,
+    /// Best validation loss and its epoch.
+    pub best: Option<EpochLoss>,
+    /// Whether early stopping ended the run.
+    #[serde(default)]
+    pub stopped_early: bool,
+}
+
+/// What the caller is told while training runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TrainEvent {
+    /// A run starts (or resumes) with this many batches per epoch.
+    Start {
+        /// First epoch to run.
+        epoch: usize,
+        /// Batches per epoch.
+        batches: usize,
+    },
+    /// One batch done with this loss.
+    Batch(f64),
+    /// One epoch done.
+    Epoch(EpochLoss),
+}
+
+impl TrainingConfig {
+    /// Whether a checkpoint of `other` can be continued with `self`: everything but the epoch
+    /// limit and the patience must agree.
+    pub fn same_run(&self, other: &TrainingConfig) -> bool {
+        let strip = |c: &TrainingConfig| TrainingConfig {
+            epochs: 0,
+            patience: 0,
+            ..c.clone()
+        };
+        strip(self) == strip(other)
+    }
+}
+
+fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
+    let bad = |m: &str| Err(Error::Parameter(m.to_string()));
+    if config.epochs == 0 || config.batch_size == 0 {
+        return bad("epochs and batch size must be at least 1");
+    }
+    if !(config.learning_rate > 0.0 && config.learning_rate.is_finite()) {
+        return bad("learning rate must be positive");
+    }
+    if !(0.0..1.0).contains(&config.validation_fraction) {
+        return bad("validation fraction must be in [0, 1)");
+    }
+    if config.model.filters.is_empty()
+        || config.model.filters.contains(&0)
+        || config.model.kernel_size % 2 == 0
+    {
+        return bad("filters must be non-empty and positive, and the kernel size odd");
+    }
+    if data.len() < 2 {
+        return Err(Error::Dataset(
+            "a training set needs at least two samples".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Mean of the squared error over free cells.
+fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) -> Tensor<1> {
+    let count = free.clone().sum();
+    (pred - target).powi_scalar(2).mul(free).sum().div(count)
+}
+
+/// Validation loss of `model` over `samples` (no gradients).
+pub fn evaluate_loss(
+    model: &PlumeNet,
+    data: &TrainingData,
+    samples: &[usize],
+    config: &TrainingConfig,
+    device: &Device,
+) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for chunk in samples.chunks(config.batch_size.max(1) * 4) {
+        let (x, y, free) = data.batch(chunk, config.encoding, &config.normalization, device);
+        let loss: f32 = masked_mse(model.forward(x), y, free).into_scalar();
+        sum += f64::from(loss) * chunk.len() as f64;
+        n += chunk.len();
+    }
+    if n == 0 { f64::NAN } else { sum / n as f64 }
+}
+
+/// Trains (or resumes training) on `data`, writing the model to `out`.
+///
+/// # Errors
+/// [`Error::Parameter`] for a bad configuration, [`Error::Dataset`] for too little data,
+/// [`Error::Model`] when a checkpoint in `out` belongs to another run or is damaged,
+/// [`Error::Io`] when `out` is not writable.
+pub fn train(
+    data: &TrainingData,
+    config: &TrainingConfig,
+    out: &Path,
+    progress: &mut dyn FnMut(TrainEvent),
+) -> Result<TrainState> {
+    check(config, data)?;
+    let device = super::backend::device().autodiff();
+    let valid_device = super::backend::device();
+    let checkpoint = out.join("checkpoint");
+    let (train_idx, val_idx) = data.split_by_layout(config.validation_fraction);
+    if train_idx.is_empty() {
+        return Err(Error::Dataset(
+            "no training layouts left after the validation split".into(),
+        ));
+    }
+    let fresh_model = || {
+        device.seed(config.seed);
+        config.model.init(&device)
+    };
+    let fresh_optim = || {
+        AdamWConfig::new()
+            .with_weight_decay(config.weight_decay)
+            .init()
+    };
+
+    let (mut model, mut optim, mut state) = if checkpoint.join("state.json").exists() {
+        let state: TrainState = io::read_json(&checkpoint.join("state.json"))?;
+        if !state.config.same_run(config) || state.dataset_digest != data.digest {
+            return Err(Error::Model(format!(
+                "{} holds a checkpoint of another run (configuration or dataset differ); \
+                 remove it or choose another --out",
+                checkpoint.display()
+            )));
+        }
+        let model = load_weights(fresh_model(), &checkpoint.join("model.bpk"))?;
+        let bytes =
+            std::fs::read(checkpoint.join("optimizer.bin")).map_err(|source| Error::Io {
+                action: "cannot read",
+                path: checkpoint.join("optimizer.bin"),
+                source,
+            })?;
+        let optim = fresh_optim()
+            .from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes))
+            .map_err(|e| Error::Model(format!("damaged optimizer checkpoint: {e:?}")))?;
+        // A resumed run may extend the epoch limit or the patience.
+        let state = TrainState {
+            config: config.clone(),
+            ..state
+        };
+        (model, optim, state)
+    } else {
+        let state = TrainState {
+            config: config.clone(),
+            dataset_digest: data.digest.clone(),
+            history: Vec::new(),
+            best: None,
+            stopped_early: false,
+        };
+        (fresh_model(), fresh_optim(), state)
+    };
+    if state.stopped_early || state.history.len() >= config.epochs {
+        return Ok(state);
+    }
+    let first_epoch = state.history.len() + 1;
+    let batches = train_idx.len().div_ceil(config.batch_size);
+    progress(TrainEvent::Start {
+        epoch: first_epoch,
+        batches,
+    });
+    for epoch in first_epoch..=config.epochs {
+        let mut order = train_idx.clone();
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        rng.set_stream(epoch as u64);
+        order.shuffle(&mut rng);
+        let mut sum = 0.0;
+        for chunk in order.chunks(config.batch_size) {
+            let (x, y, free) = data.batch(chunk, config.encoding, &config.normalization, &device);
+            let loss = masked_mse(model.forward(x), y, free);
+            let value = f64::from(loss.clone().into_scalar::<f32>());
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            model = optim.step(config.learning_rate, model, grads);
+            sum += value * chunk.len() as f64;
+            progress(TrainEvent::Batch(value));
+        }
+        let valid = model.valid();
+        let validation = evaluate_loss(&valid, data, &val_idx, config, &valid_device);
+        let record = EpochLoss {
+            epoch,
+            train: sum / train_idx.len() as f64,
+            validation,
+        };
+        state.history.push(record);
+        let improved = state
+            .best
+            .is_none_or(|b| validation < b.validation || val_idx.is_empty());
+        if improved {
+            state.best = Some(record);
+            SavedModel::new(config, data, &state).write(out, &valid)?;
+        }
+        let since_best = epoch - state.best.map_or(epoch, |b| b.epoch);
+        state.stopped_early = since_best >= config.patience;
+        let finished = epoch == config.epochs || state.stopped_early;
+        io::create_dir_all(&checkpoint)?;
+        let model_bytes = weights_bytes(&model)?;
+        io::write_atomic(&checkpoint.join("model.bpk"), |b| {
+            b.extend_from_slice(&model_bytes);
+            Ok(())
+        })?;
+        let optim_bytes = optim
+            .into_bytes()
+            .map_err(|e| Error::Model(format!("cannot serialise the optimizer: {e:?}")))?;
+        io::write_atomic(&checkpoint.join("optimizer.bin"), |b| {
+            b.extend_from_slice(&optim_bytes);
+            Ok(())
+        })?;
+        io::write_json(&checkpoint.join("state.json"), &state)?;
+        // The final config.json carries the full history.
+        if finished {
+            let best = Surrogate::load(out)?;
+            SavedModel::new(config, data, &state).write(out, best.net())?;
+        }
+        progress(TrainEvent::Epoch(record));
+        if finished {
+            break;
+        }
+    }
+    Ok(state)
+}

@@ -1,0 +1,163 @@
+//! PlumeNet: training reduces the loss, resumption is exact, save/load is bit-identical, bad
+//! models are clear errors, and both plume models give the same bank layout.
+
+use std::path::Path;
+
+use plumenet::Error;
+use plumenet::dataset::{self, GenerateConfig, GenerateParams};
+use plumenet::layout::Layout;
+use plumenet::plume::{PhysicsSolver, PlumeModel};
+use plumenet::surrogate::inference::weights_bytes;
+use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainingConfig, TrainingData, train};
+
+use crate::common::wind_tunnel;
+
+const COARSE: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#;
+
+fn tiny_dataset(dir: &Path) -> TrainingData {
+    let config = GenerateConfig {
+        base: Layout::from_json(COARSE).unwrap().spec().clone(),
+        layouts: 3,
+        sources_per_layout: 4,
+        seed: 3,
+        shard: None,
+        params: GenerateParams::default(),
+    };
+    dataset::generate(&config, dir, &|| ()).unwrap();
+    TrainingData::load(dir).unwrap()
+}
+
+fn tiny_config(epochs: usize) -> TrainingConfig {
+    TrainingConfig {
+        model: PlumeNetConfig::new()
+            .with_filters(vec![4, 8])
+            .with_convs_per_level(1)
+            .with_kernel_size(3),
+        epochs,
+        batch_size: 4,
+        learning_rate: 1e-2,
+        patience: 100,
+        validation_fraction: 0.34,
+        ..TrainingConfig::default()
+    }
+}
+
+#[test]
+fn training_reduces_the_loss_and_resumes_exactly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let straight = train(&data, &tiny_config(20), &tmp.path().join("a"), &mut |_| ()).unwrap();
+    let first = straight.history.first().unwrap().train;
+    let last = straight.history.last().unwrap().train;
+    assert!(last < 0.8 * first, "training loss {first} -> {last}");
+
+    // An interrupted run (10 epochs) continued to 20 gives bit-identical weights.
+    let b = tmp.path().join("b");
+    train(&data, &tiny_config(10), &b, &mut |_| ()).unwrap();
+    let resumed = train(&data, &tiny_config(20), &b, &mut |_| ()).unwrap();
+    assert_eq!(resumed.history, straight.history);
+    let layout = Layout::from_json(COARSE).unwrap();
+    let predict = |dir: &Path| {
+        Surrogate::load(dir)
+            .unwrap()
+            .predict(&layout, [3.0, 2.0])
+            .unwrap()
+    };
+    assert!(
+        predict(&tmp.path().join("a")) == predict(&b),
+        "resumed weights differ"
+    );
+
+    // A checkpoint of a different run is refused, not silently mixed in.
+    let other = TrainingConfig {
+        seed: 9,
+        ..tiny_config(20)
+    };
+    let err = train(&data, &other, &b, &mut |_| ()).unwrap_err();
+    assert!(matches!(err, Error::Model(_)), "{err}");
+}
+
+#[test]
+fn saved_models_load_bit_identically_and_bad_files_are_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let dir = tmp.path().join("model");
+    train(&data, &tiny_config(2), &dir, &mut |_| ()).unwrap();
+    let layout = Layout::from_json(COARSE).unwrap();
+    let (m1, m2) = (
+        Surrogate::load(&dir).unwrap(),
+        Surrogate::load(&dir).unwrap(),
+    );
+    let (p1, p2) = (
+        m1.predict(&layout, [3.0, 2.0]).unwrap(),
+        m2.predict(&layout, [3.0, 2.0]).unwrap(),
+    );
+    assert_eq!(p1, p2);
+    assert_eq!(
+        weights_bytes(m1.net()).unwrap(),
+        std::fs::read(dir.join("weights.bpk")).unwrap()
+    );
+    assert!(p1.iter().all(|v| *v >= 0.0 && v.is_finite()));
+
+    // Another grid, a source in an obstacle, a truncated weights file, a missing model.
+    let err = m1
+        .predict(&wind_tunnel(), [3.0, 2.0])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("trained for a [16, 72] grid"), "{err}");
+    let blocked = Layout::from_json(
+        r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
+           "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#,
+    )
+    .unwrap();
+    assert!(matches!(
+        m1.predict(&blocked, [6.5, 1.5]),
+        Err(Error::Source { .. })
+    ));
+    let weights = std::fs::read(dir.join("weights.bpk")).unwrap();
+    std::fs::write(dir.join("weights.bpk"), &weights[..weights.len() / 2]).unwrap();
+    let err = Surrogate::load(&dir).unwrap_err().to_string();
+    assert!(err.contains("truncated or replaced"), "{err}");
+    assert!(Surrogate::load(&tmp.path().join("nope")).is_err());
+    let junk = tmp.path().join("junk.bpk");
+    std::fs::write(&junk, b"not a burnpack file").unwrap();
+    let net = tiny_config(1)
+        .model
+        .init(&plumenet::surrogate::backend::device());
+    assert!(matches!(
+        plumenet::surrogate::inference::load_weights(net, &junk),
+        Err(Error::Model(_))
+    ));
+}
+
+#[test]
+fn both_plume_models_give_the_same_bank_layout() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let dir = tmp.path().join("model");
+    train(&data, &tiny_config(1), &dir, &mut |_| ()).unwrap();
+    let layout = Layout::from_json(
+        r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
+           "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#,
+    )
+    .unwrap();
+    let candidates = layout.candidates(0.5).unwrap();
+    let surrogate = Surrogate::load(&dir).unwrap();
+    let models: [&dyn PlumeModel; 2] = [&PhysicsSolver, &surrogate];
+    let banks: Vec<_> = models
+        .iter()
+        .map(|m| m.bank(&layout, &candidates).unwrap())
+        .collect();
+    assert_eq!(banks[0].fields.dim(), banks[1].fields.dim());
+    assert_eq!(banks[0].fields.dim(), (candidates.len(), 16, 72));
+    assert_eq!(banks[0].candidates, banks[1].candidates);
+    for bank in &banks {
+        for field in bank.fields.outer_iter() {
+            for ((j, i), v) in field.indexed_iter() {
+                if layout.is_solid(j, i) {
+                    assert_eq!(*v, 0.0);
+                }
+            }
+        }
+    }
+}
