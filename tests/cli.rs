@@ -200,3 +200,52 @@ fn every_command_has_help() {
         assert!(String::from_utf8_lossy(&out.stdout).contains("Usage"));
     }
 }
+
+#[test]
+fn shipped_model_predicts_and_banks_the_paper_arena() {
+    let tmp = tempfile::tempdir().unwrap();
+    let field = tmp.path().join("p.npy");
+    let out = plumenet(&[
+        "predict",
+        "--model",
+        "models/default",
+        "--layout",
+        TUNNEL,
+        "--source",
+        "3,2",
+        "--out",
+        field.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let f = read_npy::<f32, Ix2>(&field).unwrap();
+    assert_eq!(f.dim(), (32, 144));
+    assert!(f.iter().all(|v| *v >= 0.0 && v.is_finite()));
+    // The plume is strongest just downwind of the source and absent far upwind.
+    assert!(
+        f[[16, 28]] > 10.0 * f[[16, 4]].max(1e-6),
+        "{} vs {}",
+        f[[16, 28]],
+        f[[16, 4]]
+    );
+
+    let coarse = tmp.path().join("coarse.json");
+    std::fs::write(
+        &coarse,
+        r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#,
+    )
+    .unwrap();
+    let out = plumenet(&[
+        "bank",
+        "--model",
+        "models/default",
+        "--layout",
+        coarse.to_str().unwrap(),
+        "--out",
+        tmp.path().join("b.npy").to_str().unwrap(),
+    ]);
+    assert_clean_failure(&out, "was trained for a [32, 144] grid");
+}
