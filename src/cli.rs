@@ -267,27 +267,40 @@ impl Cli {
     }
 }
 
+/// Writes a field as `.npy` (f32) and, when asked, as a PNG.
+fn write_field(
+    field: &Array2<f64>,
+    layout: &Layout,
+    out: &Path,
+    png: Option<&Path>,
+    log: bool,
+    title: String,
+) -> Result<()> {
+    io::write_npy(out, &field.mapv(|v| v as f32))?;
+    if let Some(path) = png {
+        let plot = FieldPlot {
+            title,
+            log,
+            unit: "units/m2".into(),
+        };
+        save_png(&render_field(field, layout, &plot)?, path)?;
+    }
+    Ok(())
+}
+
 fn simulate(a: SimulateArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     layout.check_source(a.source.0, a.source.1)?;
     let wind = WindField::solve(&layout)?;
     let transport = Transport::new(&layout, &wind)?;
     let field = transport.solve(a.source.0, a.source.1)?;
-    io::write_npy(&a.out, &field.mapv(|v| v as f32))?;
+    let title = format!(
+        "mean concentration, source ({}, {}) m",
+        a.source.0, a.source.1
+    );
+    write_field(&field, &layout, &a.out, a.png.as_deref(), a.log, title)?;
     if let Some(path) = &a.wind_out {
         io::write_npy(path, &wind.centred().mapv(|v| v as f32))?;
-    }
-    if let Some(path) = &a.png {
-        let title = format!(
-            "mean concentration, source ({}, {}) m",
-            a.source.0, a.source.1
-        );
-        let plot = FieldPlot {
-            title,
-            log: a.log,
-            unit: "units/m2".into(),
-        };
-        save_png(&render_field(&field, &layout, &plot)?, path)?;
     }
     let outlet = transport.outlet_flux(&field);
     let peak = field.iter().copied().fold(0.0, f64::max);
@@ -507,19 +520,11 @@ fn predict(a: PredictArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     let model = Surrogate::load(&a.model)?;
     let field = model.predict(&layout, [a.source.0, a.source.1])?;
-    io::write_npy(&a.out, &field.mapv(|v| v as f32))?;
-    if let Some(path) = &a.png {
-        let title = format!(
-            "PlumeNet prediction, source ({}, {}) m",
-            a.source.0, a.source.1
-        );
-        let plot = FieldPlot {
-            title,
-            log: a.log,
-            unit: "units/m2".into(),
-        };
-        save_png(&render_field(&field, &layout, &plot)?, path)?;
-    }
+    let title = format!(
+        "PlumeNet prediction, source ({}, {}) m",
+        a.source.0, a.source.1
+    );
+    write_field(&field, &layout, &a.out, a.png.as_deref(), a.log, title)?;
     println!("wrote {}", a.out.display());
     Ok(())
 }
