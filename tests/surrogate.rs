@@ -14,6 +14,10 @@ use crate::common::wind_tunnel;
 
 const COARSE: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#;
 
+/// The coarse arena with one obstacle.
+const BLOCKED: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
+    "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#;
+
 fn tiny_dataset(dir: &Path) -> TrainingData {
     let config = GenerateConfig {
         base: Layout::from_json(COARSE).unwrap().spec().clone(),
@@ -105,11 +109,7 @@ fn saved_models_load_bit_identically_and_bad_files_are_errors() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("trained for a [16, 72] grid"), "{err}");
-    let blocked = Layout::from_json(
-        r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
-           "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#,
-    )
-    .unwrap();
+    let blocked = Layout::from_json(BLOCKED).unwrap();
     assert!(matches!(
         m1.predict(&blocked, [6.5, 1.5]),
         Err(Error::Source { .. })
@@ -136,11 +136,7 @@ fn both_plume_models_give_the_same_bank_layout() {
     let data = tiny_dataset(&tmp.path().join("data"));
     let dir = tmp.path().join("model");
     train(&data, &tiny_config(1), &dir, &mut |_| ()).unwrap();
-    let layout = Layout::from_json(
-        r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
-           "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#,
-    )
-    .unwrap();
+    let layout = Layout::from_json(BLOCKED).unwrap();
     let candidates = layout.candidates(0.5).unwrap();
     let surrogate = Surrogate::load(&dir).unwrap();
     let models: [&dyn PlumeModel; 2] = [&PhysicsSolver, &surrogate];
