@@ -67,9 +67,31 @@ pub struct PlumeNet {
     head: Conv2d,
 }
 
+/// Burn's random generator is global to the backend: seeding and then drawing the initial
+/// weights must not interleave with another thread's initialisation.
+static INIT_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 impl PlumeNetConfig {
-    /// Builds the network with freshly initialised weights on `device`.
+    /// Builds the network with weights drawn from a generator seeded with `seed`, so the same
+    /// seed gives the same network even while other threads initialise networks too.
+    pub fn init_seeded(&self, device: &Device, seed: u64) -> PlumeNet {
+        let _guard = INIT_LOCK
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        device.seed(seed);
+        self.init_unlocked(device)
+    }
+
+    /// Builds the network with freshly initialised weights on `device` (weights to be replaced
+    /// by a loaded record).
     pub fn init(&self, device: &Device) -> PlumeNet {
+        let _guard = INIT_LOCK
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        self.init_unlocked(device)
+    }
+
+    fn init_unlocked(&self, device: &Device) -> PlumeNet {
         let k = self.kernel_size;
         let n = self.convs_per_level;
         let f = &self.filters;

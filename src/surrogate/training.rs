@@ -190,10 +190,7 @@ pub fn train(
             "no training layouts left after the validation split".into(),
         ));
     }
-    let fresh_model = || {
-        device.seed(config.seed);
-        config.model.init(&device)
-    };
+    let fresh_model = || config.model.init_seeded(&device, config.seed);
     let fresh_optim = || {
         AdamWConfig::new()
             .with_weight_decay(config.weight_decay)
