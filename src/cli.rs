@@ -20,6 +20,8 @@ use plumenet::surrogate::eval::evaluate;
 use plumenet::surrogate::{Surrogate, TrainEvent, TrainingConfig, TrainingData};
 use plumenet::{bench, io};
 
+mod ste;
+
 /// Calibration-free gas source localisation: dispersion simulator, datasets and plume banks.
 #[derive(Debug, Parser)]
 #[command(name = "plumenet", version, about, long_about = None)]
@@ -46,6 +48,12 @@ enum Command {
     Predict(PredictArgs),
     /// Accuracy of a trained PlumeNet on a dataset (relative L2, Spearman rho).
     Eval(EvalArgs),
+    /// One simulated localisation run: robot, MOX sensor, filament plume and the STE.
+    Localize(ste::LocalizeArgs),
+    /// The STE over a logged run (CSV t,x,y,value), for a real robot's readings.
+    Replay(ste::ReplayArgs),
+    /// The paper's study: features x sensors x runs, CSV + summary + box plots.
+    Experiment(ste::ExperimentArgs),
 }
 
 #[derive(Debug, Args)]
@@ -263,6 +271,9 @@ impl Cli {
             Command::Train(a) => train(a),
             Command::Predict(a) => predict(a),
             Command::Eval(a) => eval(a),
+            Command::Localize(a) => ste::localize(a),
+            Command::Replay(a) => ste::replay_log(a),
+            Command::Experiment(a) => ste::experiment(a),
         }
     }
 }

@@ -56,6 +56,14 @@ pub enum Error {
     /// A trained model is missing, damaged, foreign, or made for another grid.
     #[error("model: {0}")]
     Model(String),
+    /// A logged run (CSV readings) is missing columns, malformed, empty or holds NaN.
+    #[error("bad readings log {path}: {reason}")]
+    Log {
+        /// The file involved.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// A PNG could not be encoded.
     #[error("cannot encode image {path}: {reason}")]
     Image {

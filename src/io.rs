@@ -139,3 +139,38 @@ where
         reason: e.to_string(),
     })
 }
+
+/// Writes rows as CSV with a header (serde field names), atomically.
+///
+/// # Errors
+/// [`Error::Io`] when the file cannot be written.
+pub fn write_csv<T: Serialize>(path: &Path, rows: &[T]) -> Result<()> {
+    write_atomic(path, |buf| {
+        let mut w = csv::Writer::from_writer(buf);
+        for row in rows {
+            w.serialize(row).map_err(|e| csv_error(path, e))?;
+        }
+        w.flush().map_err(|e| Error::Io {
+            action: "cannot write",
+            path: path.to_path_buf(),
+            source: e,
+        })
+    })
+}
+
+fn csv_error(path: &Path, e: csv::Error) -> Error {
+    Error::Io {
+        action: "cannot write",
+        path: path.to_path_buf(),
+        source: std::io::Error::other(e.to_string()),
+    }
+}
+
+/// Hex SHA-256 of bytes.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}

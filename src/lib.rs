@@ -26,6 +26,7 @@ pub mod layout;
 pub mod physics;
 pub mod plume;
 pub mod report;
+pub mod ste;
 pub mod surrogate;
 
 pub use error::{Error, Result};

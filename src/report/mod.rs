@@ -11,11 +11,13 @@ use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::Layout;
 
+pub mod belief;
+
 /// Decades shown below the maximum on a log scale.
 pub const LOG_DECADES: f64 = 4.0;
 
-const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
-const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
+pub(crate) const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
+pub(crate) const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
 const OBSTACLE: Rgb<u8> = Rgb([90, 90, 90]);
 const MARGIN: u32 = 12;
 const TITLE_H: u32 = 28;
@@ -33,11 +35,44 @@ pub struct FieldPlot {
     pub unit: String,
 }
 
+/// Where the map of a rendered field lies in its image, to draw on top of it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapFrame {
+    left: u32,
+    top: u32,
+    scale: u32,
+    cell: f64,
+    height: u32,
+}
+
+impl MapFrame {
+    /// Pixel of a point in metres (may lie outside the image for points outside the arena).
+    pub fn pixel(&self, x: f64, y: f64) -> (i64, i64) {
+        let s = f64::from(self.scale) / self.cell;
+        (
+            i64::from(self.left) + (x * s).round() as i64,
+            i64::from(self.top + self.height) - (y * s).round() as i64,
+        )
+    }
+}
+
 /// Renders a `[ny, nx]` field with `y` pointing up, obstacles in grey.
 ///
 /// # Errors
 /// [`Error::Parameter`] when the field's shape is not the layout's grid or it holds NaN.
 pub fn render_field(field: &Array2<f64>, layout: &Layout, plot: &FieldPlot) -> Result<RgbImage> {
+    render_field_framed(field, layout, plot).map(|(img, _)| img)
+}
+
+/// [`render_field`], also returning where the map lies so that markers can be drawn on it.
+///
+/// # Errors
+/// As [`render_field`].
+pub fn render_field_framed(
+    field: &Array2<f64>,
+    layout: &Layout,
+    plot: &FieldPlot,
+) -> Result<(RgbImage, MapFrame)> {
     let (ny, nx) = layout.shape();
     if field.dim() != (ny, nx) {
         return Err(Error::Parameter(format!(
@@ -105,7 +140,32 @@ pub fn render_field(field: &Array2<f64>, layout: &Layout, plot: &FieldPlot) -> R
     if map_h > 48 {
         draw_text(&mut img, text_x, TITLE_H + map_h / 4 - 4, &plot.unit);
     }
-    Ok(img)
+    let frame = MapFrame {
+        left: MARGIN,
+        top: TITLE_H,
+        scale,
+        cell: layout.cell(),
+        height: map_h,
+    };
+    Ok((img, frame))
+}
+
+/// Sets a pixel if it lies in the image.
+pub fn put(img: &mut RgbImage, (x, y): (i64, i64), colour: Rgb<u8>) {
+    if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
+        img.put_pixel(x as u32, y as u32, colour);
+    }
+}
+
+/// A filled disc of radius `r` pixels.
+pub fn disc(img: &mut RgbImage, (cx, cy): (i64, i64), r: i64, colour: Rgb<u8>) {
+    for dy in -r..=r {
+        for dx in -r..=r {
+            if dx * dx + dy * dy <= r * r {
+                put(img, (cx + dx, cy + dy), colour);
+            }
+        }
+    }
 }
 
 /// Writes an image as PNG, atomically.
@@ -128,7 +188,8 @@ pub fn save_png(img: &RgbImage, path: &Path) -> Result<()> {
     })
 }
 
-fn viridis(t: f64) -> Rgb<u8> {
+/// The viridis colour of `t` in `[0, 1]`.
+pub fn viridis(t: f64) -> Rgb<u8> {
     let c = colorous::VIRIDIS.eval_continuous(t);
     Rgb([c.r, c.g, c.b])
 }
@@ -149,7 +210,7 @@ fn frame(img: &mut RgbImage, x0: u32, y0: u32, w: u32, h: u32) {
 }
 
 /// Draws text with the public-domain 8x8 bitmap font (no system fonts needed).
-fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
+pub fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
     for (k, ch) in text.chars().enumerate() {
         let Some(glyph) = font8x8::BASIC_FONTS.get(ch) else {
             continue;

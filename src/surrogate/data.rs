@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::Manifest;
 use crate::error::{Error, Result};
 use crate::io;
+use crate::io::sha256_hex;
 use crate::layout::Layout;
 
 /// How the source position is given to the network.
@@ -236,13 +237,4 @@ impl TrainingData {
         };
         (t(input, INPUT_CHANNELS), t(target, 1), t(free, 1))
     }
-}
-
-/// Hex SHA-256 of bytes.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::Digest;
-    sha2::Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
 }

@@ -10,12 +10,12 @@ use serde::{Deserialize, Serialize};
 
 use super::data::{
     INPUT_CHANNELS, Normalization, SourceEncoding, TrainingData, encode_input, layout_planes,
-    sha256_hex,
 };
 use super::model::{PlumeNet, PlumeNetConfig};
 use super::training::{TrainState, TrainingConfig};
 use crate::error::{Error, Result};
 use crate::io;
+use crate::io::sha256_hex;
 use crate::layout::Layout;
 use crate::plume::{PlumeBank, PlumeModel};
 
@@ -263,6 +263,14 @@ impl Surrogate {
 impl PlumeModel for Surrogate {
     fn name(&self) -> String {
         format!("plumenet:{}", self.dir.display())
+    }
+
+    fn digest(&self) -> String {
+        sha256_hex(
+            serde_json::to_string(&self.saved)
+                .unwrap_or_default()
+                .as_bytes(),
+        )
     }
 
     fn bank(&self, layout: &Layout, candidates: &[[f64; 2]]) -> Result<PlumeBank> {

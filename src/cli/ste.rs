@@ -1,0 +1,470 @@
+//! The STE commands: `localize` (one simulated run) and `replay` (a logged run).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use serde_json::json;
+
+use plumenet::io;
+use plumenet::layout::Layout;
+use plumenet::plume::{PhysicsSolver, PlumeModel};
+use plumenet::report::belief::{BeliefPlot, render_belief, write_episode_pictures};
+use plumenet::report::save_png;
+use plumenet::ste::experiment::{plan_runs, run_study, summarize};
+use plumenet::ste::replay::{read_log, replay};
+use plumenet::ste::run::derive_seed;
+use plumenet::ste::{
+    EpisodeConfig, Feature, PlannerKind, RobotParams, Sampling, SensorPreset, Sigmas, SteParams,
+    World, run_episode,
+};
+use plumenet::surrogate::Surrogate;
+
+use super::parse_point;
+
+/// Which plume model feeds the estimator, and where its banks are cached.
+#[derive(Debug, Args)]
+pub struct PlumeArgs {
+    /// Use the physics solver as plume model instead of PlumeNet.
+    #[arg(long, conflicts_with = "model")]
+    solver: bool,
+    /// Trained PlumeNet model directory.
+    #[arg(long, default_value = "models/default")]
+    model: PathBuf,
+    /// Candidate grid spacing (m).
+    #[arg(long, default_value_t = 0.25)]
+    spacing: f64,
+    /// Bank cache directory (banks are keyed by layout and model digest).
+    #[arg(long, default_value = "data/cache")]
+    cache_dir: PathBuf,
+    /// Do not read or write the bank cache.
+    #[arg(long)]
+    no_cache: bool,
+}
+
+impl PlumeArgs {
+    /// Loads the layout's world (wind + bank) for the chosen model.
+    pub fn world(&self, layout: Layout) -> Result<World> {
+        let model: Box<dyn PlumeModel> = if self.solver {
+            Box::new(PhysicsSolver)
+        } else {
+            Box::new(Surrogate::load(&self.model).with_context(|| {
+                format!(
+                    "cannot load the plume model {} (or pass --solver)",
+                    self.model.display()
+                )
+            })?)
+        };
+        let cache = (!self.no_cache).then_some(self.cache_dir.as_path());
+        let (world, hit) = World::build(layout, model.as_ref(), self.spacing, cache)?;
+        println!(
+            "plume model {}: {} candidates{}",
+            model.name(),
+            world.sampler.len(),
+            if hit { " (bank from cache)" } else { "" }
+        );
+        Ok(world)
+    }
+
+    /// The plume model's name for reports.
+    pub fn name(&self) -> String {
+        if self.solver {
+            "solver".into()
+        } else {
+            format!("plumenet:{}", self.model.display())
+        }
+    }
+
+    /// The candidate spacing (m).
+    pub fn spacing(&self) -> f64 {
+        self.spacing
+    }
+}
+
+/// Feature and likelihood settings shared by `localize`, `replay` and `experiment`.
+#[derive(Debug, Args)]
+pub struct FeatureArgs {
+    /// Model-error standard deviation sigma_E (default: the feature's tuned value).
+    #[arg(long)]
+    sigma_model: Option<f64>,
+    /// Measurement-error standard deviation sigma_M (default: the feature's tuned value).
+    #[arg(long)]
+    sigma_measurement: Option<f64>,
+    /// Threshold of the fixed-hit feature (reading units).
+    #[arg(long)]
+    fixed_threshold: Option<f64>,
+    /// Smoothing factor of the adaptive-hit feature.
+    #[arg(long)]
+    lambda: Option<f64>,
+    /// Compare the plume model's values directly, without passing them through the sensor's
+    /// response and recovery dynamics first (the paper's form).
+    #[arg(long)]
+    no_lag_model: bool,
+}
+
+impl FeatureArgs {
+    /// The estimator settings for a feature with these overrides.
+    pub fn params(&self, feature: Feature) -> SteParams {
+        let mut p = SteParams::for_feature(feature);
+        let d = Sigmas::default_for(feature);
+        p.sigmas = Sigmas {
+            model: self.sigma_model.unwrap_or(d.model),
+            measurement: self.sigma_measurement.unwrap_or(d.measurement),
+        };
+        if let Some(t) = self.fixed_threshold {
+            p.features.fixed_threshold = t;
+        }
+        if let Some(l) = self.lambda {
+            p.features.lambda = l;
+        }
+        if self.no_lag_model {
+            p.sensor_lag_s = None;
+        }
+        p
+    }
+}
+
+/// The gas feature on the command line.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum FeatureArg {
+    Value,
+    FixedHit,
+    AdaptiveHit,
+    Rank,
+}
+
+impl From<FeatureArg> for Feature {
+    fn from(f: FeatureArg) -> Self {
+        match f {
+            FeatureArg::Value => Feature::Value,
+            FeatureArg::FixedHit => Feature::FixedHit,
+            FeatureArg::AdaptiveHit => Feature::AdaptiveHit,
+            FeatureArg::Rank => Feature::Rank,
+        }
+    }
+}
+
+/// The sensor preset on the command line.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum SensorArg {
+    Calibrated,
+    SensorI,
+    SensorII,
+}
+
+impl From<SensorArg> for SensorPreset {
+    fn from(s: SensorArg) -> Self {
+        match s {
+            SensorArg::Calibrated => SensorPreset::Calibrated,
+            SensorArg::SensorI => SensorPreset::SensorI,
+            SensorArg::SensorII => SensorPreset::SensorII,
+        }
+    }
+}
+
+/// The planner on the command line.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PlannerArg {
+    BeliefClustering,
+    Baseline,
+}
+
+impl From<PlannerArg> for PlannerKind {
+    fn from(p: PlannerArg) -> Self {
+        match p {
+            PlannerArg::BeliefClustering => PlannerKind::BeliefClustering,
+            PlannerArg::Baseline => PlannerKind::Baseline,
+        }
+    }
+}
+
+/// Robot and run settings shared by `localize` and `experiment`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Planner.
+    #[arg(long, value_enum, default_value_t = PlannerArg::BeliefClustering)]
+    planner: PlannerArg,
+    /// Stop-sense-go sampling (a stop every metre, 10 s settle, 10 s average) instead of
+    /// sense-in-motion.
+    #[arg(long)]
+    stop_sense_go: bool,
+    /// A noise-free sensor.
+    #[arg(long)]
+    noise_free: bool,
+    /// Iteration limit.
+    #[arg(long, default_value_t = 30)]
+    max_iterations: usize,
+    /// Entropy (nats) below which the run may stop (default: the tuned value).
+    #[arg(long)]
+    entropy_threshold: Option<f64>,
+}
+
+impl RunArgs {
+    /// The run settings for a feature and sensor.
+    pub fn config(&self, ste: SteParams, sensor: SensorPreset) -> EpisodeConfig {
+        let mut c = EpisodeConfig::new(ste.feature, sensor);
+        c.ste = ste;
+        c.planner = self.planner.into();
+        c.sensor_noise = !self.noise_free;
+        c.termination.max_iterations = self.max_iterations;
+        if let Some(h) = self.entropy_threshold {
+            c.termination.entropy_nats = h;
+        }
+        if self.stop_sense_go {
+            c.robot = RobotParams {
+                sampling: Sampling::stop_sense_go(),
+                ..c.robot
+            };
+        }
+        c
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct LocalizeArgs {
+    /// Layout JSON file.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// True source position "X,Y" (m).
+    #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
+    source: (f64, f64),
+    /// Robot start "X,Y" (m); default: a random free position drawn from --seed.
+    #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
+    start: Option<(f64, f64)>,
+    /// Gas feature.
+    #[arg(long, value_enum, default_value_t = FeatureArg::Rank)]
+    feature: FeatureArg,
+    /// Sensor.
+    #[arg(long, value_enum, default_value_t = SensorArg::SensorII)]
+    sensor: SensorArg,
+    #[command(flatten)]
+    plume: PlumeArgs,
+    #[command(flatten)]
+    features: FeatureArgs,
+    #[command(flatten)]
+    run: RunArgs,
+    /// Seed of the plume, the sensor noise, the planner and the default start.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the run (estimate, error, trajectory, samples, sigmas, history) as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write one picture per iteration into this directory.
+    #[arg(long)]
+    png_dir: Option<PathBuf>,
+}
+
+pub fn localize(a: LocalizeArgs) -> Result<()> {
+    let layout = Layout::load(&a.layout)?;
+    let source = [a.source.0, a.source.1];
+    layout.check_source(source[0], source[1])?;
+    let world = a.plume.world(layout)?;
+    let feature = Feature::from(a.feature);
+    let config = a.run.config(a.features.params(feature), a.sensor.into());
+    let start = match a.start {
+        Some((x, y)) => [x, y],
+        None => {
+            plumenet::ste::run::random_start(&world.layout, &config.robot, derive_seed(a.seed, 4))?
+        }
+    };
+    let episode = run_episode(&world, &config, source, start, a.seed, a.png_dir.is_some())?;
+    println!(
+        "{} / {} / {}: estimate ({:.2}, {:.2}), error {:.2} m, {} iterations, {}, {} samples, {:.1} s",
+        feature.name(),
+        config.sensor.name(),
+        a.plume.name(),
+        episode.estimate[0],
+        episode.estimate[1],
+        episode.error_m,
+        episode.iterations,
+        if episode.converged {
+            "converged"
+        } else {
+            "not converged"
+        },
+        episode.samples.len(),
+        episode.wall_time_s
+    );
+    if let Some(dir) = &a.png_dir {
+        let paths = write_episode_pictures(
+            &world.layout,
+            world.sampler.candidates(),
+            a.plume.spacing(),
+            &episode,
+            dir,
+        )?;
+        println!("wrote {} pictures into {}", paths.len(), dir.display());
+    }
+    if let Some(path) = &a.json {
+        let mut value = serde_json::to_value(&episode)?;
+        value["model"] = json!(a.plume.name());
+        value["sigmas"] = json!(config.ste.sigmas);
+        value["candidates"] = json!(world.sampler.candidates());
+        io::write_json(path, &value)?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// Layout JSON file.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// Readings log, CSV with the columns t,x,y,value.
+    #[arg(long)]
+    log: PathBuf,
+    /// Gas feature.
+    #[arg(long, value_enum, default_value_t = FeatureArg::Rank)]
+    feature: FeatureArg,
+    #[command(flatten)]
+    plume: PlumeArgs,
+    #[command(flatten)]
+    features: FeatureArgs,
+    /// Robot radius (m): the prior excludes obstacles inflated by it.
+    #[arg(long, default_value_t = 0.07)]
+    robot_radius: f64,
+    /// Write estimate and posterior as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Draw the posterior with the samples.
+    #[arg(long)]
+    png: Option<PathBuf>,
+}
+
+pub fn replay_log(a: ReplayArgs) -> Result<()> {
+    let layout = Layout::load(&a.layout)?;
+    let samples = read_log(&a.log)?;
+    let world = a.plume.world(layout)?;
+    let feature = Feature::from(a.feature);
+    let params = a.features.params(feature);
+    let est = replay(Arc::clone(&world.sampler), params, a.robot_radius, &samples)?;
+    let estimate = est.estimate();
+    println!(
+        "{} readings, {}: estimate ({:.2}, {:.2}), entropy {:.2} nats",
+        samples.len(),
+        feature.name(),
+        estimate[0],
+        estimate[1],
+        est.entropy()
+    );
+    if let Some(path) = &a.png {
+        let title = format!(
+            "replay  {}  estimate ({:.2}, {:.2})",
+            feature.name(),
+            estimate[0],
+            estimate[1]
+        );
+        let img = render_belief(
+            &world.layout,
+            &BeliefPlot {
+                title: &title,
+                candidates: est.candidates(),
+                spacing_m: a.plume.spacing(),
+                posterior: est.posterior(),
+                trajectory: &[],
+                samples: est.positions(),
+                edf: est.measured_edf(),
+                source: None,
+                estimate,
+            },
+        )?;
+        save_png(&img, path)?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &a.json {
+        let posterior: Vec<_> = est
+            .candidates()
+            .iter()
+            .zip(est.posterior())
+            .map(|(c, p)| json!({"x": c[0], "y": c[1], "p": p}))
+            .collect();
+        let report = json!({
+            "estimate": estimate, "entropy": est.entropy(), "samples": samples.len(),
+            "feature": feature.name(), "sigmas": params.sigmas, "model": a.plume.name(),
+            "posterior": posterior,
+        });
+        io::write_json(path, &report)?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+#[derive(Debug, Args)]
+pub struct ExperimentArgs {
+    /// Layout JSON file.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// Runs per feature and sensor (random source and start each).
+    #[arg(long, default_value_t = 10)]
+    runs: usize,
+    /// Study seed: run r uses the same source, start and noise for every feature and sensor.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Output directory (runs.csv, summary.csv, summary.md, boxplots.png).
+    #[arg(long, default_value = "out/experiment")]
+    out: PathBuf,
+    /// Features to compare.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [FeatureArg::Value, FeatureArg::FixedHit, FeatureArg::AdaptiveHit, FeatureArg::Rank])]
+    features: Vec<FeatureArg>,
+    /// Sensors to compare.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [SensorArg::Calibrated, SensorArg::SensorI, SensorArg::SensorII])]
+    sensors: Vec<SensorArg>,
+    #[command(flatten)]
+    plume: PlumeArgs,
+    #[command(flatten)]
+    overrides: FeatureArgs,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+pub fn experiment(a: ExperimentArgs) -> Result<()> {
+    let layout = Layout::load(&a.layout)?;
+    let world = a.plume.world(layout)?;
+    let features: Vec<Feature> = a.features.iter().map(|&f| f.into()).collect();
+    let sensors: Vec<SensorPreset> = a.sensors.iter().map(|&s| s.into()).collect();
+    let plan = plan_runs(&features, &sensors, a.runs);
+    let bar = super::progress_bar(plan.len(), "runs");
+    let rows = run_study(
+        &world,
+        &plan,
+        a.seed,
+        |f, s| a.run.config(a.overrides.params(f), s),
+        || bar.inc(1),
+    )?;
+    bar.finish_and_clear();
+    let summary = summarize(&rows);
+    io::write_csv(&a.out.join("runs.csv"), &rows)?;
+    io::write_csv(&a.out.join("summary.csv"), &summary)?;
+    let table = summary_table(&summary);
+    io::write_atomic(&a.out.join("summary.md"), |buf| {
+        buf.extend_from_slice(table.as_bytes());
+        Ok(())
+    })?;
+    print!("{table}");
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+/// The study's summary as a Markdown table.
+fn summary_table(summary: &[plumenet::ste::experiment::SummaryRow]) -> String {
+    let mut t = String::from(
+        "| feature | sensor | runs | error mean ± std (m) | median (m) | iterations mean ± std | converged |\n|---|---|---|---|---|---|---|\n",
+    );
+    for s in summary {
+        t.push_str(&format!(
+            "| {} | {} | {} | {:.2} ± {:.2} | {:.2} | {:.1} ± {:.1} | {:.0}% |\n",
+            s.feature,
+            s.sensor,
+            s.runs,
+            s.error_mean_m,
+            s.error_std_m,
+            s.error_median_m,
+            s.iterations_mean,
+            s.iterations_std,
+            100.0 * s.converged_share
+        ));
+    }
+    t
+}

@@ -1,0 +1,95 @@
+//! The STE over a logged run, for users with a real robot: readings from a CSV file with the
+//! columns `t,x,y,value` (time in s, position in m, the raw reading; any column order, extra
+//! columns ignored, rows in time order).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use crate::error::{Error, Result};
+use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
+use crate::ste::run::PRIOR_BAND_M;
+use crate::ste::sampler::FieldSampler;
+
+const COLUMNS: [&str; 4] = ["t", "x", "y", "value"];
+
+/// Reads a readings log.
+///
+/// # Errors
+/// [`Error::Log`] when the file cannot be parsed, a column is missing, a field is not a finite
+/// number, there is no row, or time goes backwards; [`Error::Io`] when it cannot be read.
+pub fn read_log(path: &Path) -> Result<Vec<Sample>> {
+    let bad = |reason: String| Error::Log {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let text = crate::io::read_to_string(path)?;
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let headers = reader
+        .headers()
+        .map_err(|e| bad(format!("cannot read the header: {e}")))?
+        .clone();
+    let mut index = [0usize; 4];
+    for (slot, name) in index.iter_mut().zip(COLUMNS) {
+        *slot = headers.iter().position(|h| h == name).ok_or_else(|| {
+            bad(format!(
+                "missing column '{name}' (need t,x,y,value; found {})",
+                headers.iter().collect::<Vec<_>>().join(",")
+            ))
+        })?;
+    }
+    let mut samples: Vec<Sample> = Vec::new();
+    for (row, record) in reader.records().enumerate() {
+        let line = row + 2;
+        let record = record.map_err(|e| bad(format!("line {line}: {e}")))?;
+        let mut v = [0.0f64; 4];
+        for ((slot, &col), name) in v.iter_mut().zip(&index).zip(COLUMNS) {
+            let field = record.get(col).unwrap_or("");
+            *slot = field
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| {
+                    bad(format!(
+                        "line {line}: {name} = '{field}' is not a finite number"
+                    ))
+                })?;
+        }
+        if samples.last().is_some_and(|s| v[0] < s.t) {
+            return Err(bad(format!("line {line}: time goes backwards")));
+        }
+        samples.push(Sample {
+            t: v[0],
+            x: v[1],
+            y: v[2],
+            value: v[3],
+        });
+    }
+    if samples.is_empty() {
+        return Err(bad("no readings".into()));
+    }
+    Ok(samples)
+}
+
+/// Runs the estimator over all readings at once, with the uniform prior of a simulated run
+/// (obstacles inflated by `robot_radius_m`, the 0.25 m boundary band excluded).
+///
+/// # Errors
+/// [`Error::Parameter`] for bad settings or a sample outside the arena.
+pub fn replay(
+    sampler: Arc<FieldSampler>,
+    params: SteParams,
+    robot_radius_m: f64,
+    samples: &[Sample],
+) -> Result<Estimator> {
+    let support = prior_support(
+        sampler.layout(),
+        sampler.candidates(),
+        robot_radius_m,
+        PRIOR_BAND_M,
+    )?;
+    let mut est = Estimator::new(sampler, &support, params)?;
+    est.update(samples)?;
+    Ok(est)
+}
