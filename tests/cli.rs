@@ -194,7 +194,19 @@ fn bad_input_gives_one_clear_error_line_and_no_file() {
 
 #[test]
 fn every_command_has_help() {
-    for cmd in ["simulate", "bank", "generate", "merge", "bench"] {
+    for cmd in [
+        "simulate",
+        "bank",
+        "generate",
+        "merge",
+        "bench",
+        "train",
+        "predict",
+        "eval",
+        "localize",
+        "replay",
+        "experiment",
+    ] {
         let out = plumenet(&[cmd, "--help"]);
         assert!(out.status.success());
         assert!(String::from_utf8_lossy(&out.stdout).contains("Usage"));
@@ -248,4 +260,166 @@ fn shipped_model_predicts_and_banks_the_paper_arena() {
         tmp.path().join("b.npy").to_str().unwrap(),
     ]);
     assert_clean_failure(&out, "was trained for a [32, 144] grid");
+}
+
+#[test]
+fn localize_writes_the_run_and_its_pictures() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json_path = tmp.path().join("run.json");
+    let pics = tmp.path().join("pics");
+    let cache = tmp.path().join("cache");
+    let args = [
+        "localize",
+        "--solver",
+        "--source",
+        "4.1,2.1",
+        "--start",
+        "12,1",
+        "--feature",
+        "rank",
+        "--sensor",
+        "sensor-ii",
+        "--seed",
+        "3",
+        "--max-iterations",
+        "4",
+        "--json",
+        json_path.to_str().unwrap(),
+        "--png-dir",
+        pics.to_str().unwrap(),
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ];
+    let out = plumenet(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("estimate") && stdout.contains("error"),
+        "{stdout}"
+    );
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    for key in [
+        "estimate",
+        "error_m",
+        "iterations",
+        "converged",
+        "trajectory",
+        "samples",
+        "sigmas",
+    ] {
+        assert!(run.get(key).is_some(), "missing {key}");
+    }
+    let iterations = run["iterations"].as_u64().unwrap() as usize;
+    assert!((1..=4).contains(&iterations));
+    let [ex, ey] = [0, 1].map(|k| run["estimate"][k].as_f64().unwrap());
+    let err = (ex - 4.1).hypot(ey - 2.1);
+    assert!((err - run["error_m"].as_f64().unwrap()).abs() < 1e-9);
+    let pngs = std::fs::read_dir(&pics).unwrap().count();
+    assert_eq!(pngs, iterations);
+    let banks = std::fs::read_dir(&cache).unwrap().count();
+    assert_eq!(banks, 1, "the bank is cached");
+    // The second run reads the cached bank and repeats the first exactly.
+    let again = plumenet(&args);
+    assert!(String::from_utf8_lossy(&again.stdout).contains("bank from cache"));
+    let run2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    assert_eq!(run["samples"], run2["samples"]);
+    assert_eq!(run["estimate"], run2["estimate"]);
+}
+
+#[test]
+fn replay_and_experiment_write_their_reports() {
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("log.csv");
+    let mut csv = String::from("t,x,y,value\n");
+    for k in 0..40 {
+        let x = 2.0 + 0.3 * f64::from(k);
+        csv.push_str(&format!(
+            "{},{x},2.0,{}\n",
+            f64::from(k) * 0.1,
+            1.0 / (1.0 + (x - 6.0).abs())
+        ));
+    }
+    std::fs::write(&log, csv).unwrap();
+    let json_path = tmp.path().join("replay.json");
+    let out = plumenet(&[
+        "replay",
+        "--solver",
+        "--no-cache",
+        "--log",
+        log.to_str().unwrap(),
+        "--json",
+        json_path.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let post = rep["posterior"].as_array().unwrap();
+    assert_eq!(post.len(), 1112);
+    let total: f64 = post.iter().map(|p| p["p"].as_f64().unwrap()).sum();
+    assert!((total - 1.0).abs() < 1e-9);
+    assert!(rep["estimate"].as_array().unwrap().len() == 2);
+
+    let dir = tmp.path().join("study");
+    let out = plumenet(&[
+        "experiment",
+        "--solver",
+        "--no-cache",
+        "--runs",
+        "2",
+        "--features",
+        "value,rank",
+        "--sensors",
+        "sensor-ii",
+        "--max-iterations",
+        "3",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let runs = std::fs::read_to_string(dir.join("runs.csv")).unwrap();
+    assert_eq!(runs.lines().count(), 1 + 4);
+    assert!(runs.starts_with("feature,sensor,run,seed,source_x"));
+    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    assert!(summary.contains("| rank | sensor-ii | 2 |"), "{summary}");
+    assert!(dir.join("boxplots.png").exists());
+}
+
+#[test]
+fn bad_ste_input_fails_cleanly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bad = tmp.path().join("bad.csv");
+    std::fs::write(&bad, "t,x,value\n0,1,2\n").unwrap();
+    let out = plumenet(&[
+        "replay",
+        "--solver",
+        "--no-cache",
+        "--log",
+        bad.to_str().unwrap(),
+    ]);
+    assert_clean_failure(&out, "missing column 'y'");
+    let out = plumenet(&["localize", "--solver", "--no-cache", "--source", "7,1"]);
+    assert_clean_failure(&out, "inside obstacle");
+    let out = plumenet(&[
+        "localize",
+        "--no-cache",
+        "--model",
+        "models/missing",
+        "--source",
+        "3,2",
+    ]);
+    assert_clean_failure(&out, "models/missing");
 }

@@ -6,6 +6,7 @@ mod cli;
 mod dataset;
 mod filament;
 mod layout;
+mod ste;
 mod surrogate;
 mod transport;
 mod wind;

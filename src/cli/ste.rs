@@ -12,7 +12,7 @@ use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::belief::{BeliefPlot, render_belief, write_episode_pictures};
 use plumenet::report::save_png;
-use plumenet::ste::experiment::{plan_runs, run_study, summarize};
+use plumenet::ste::experiment::{plan_runs, run_study, study_plot, summarize};
 use plumenet::ste::replay::{read_log, replay};
 use plumenet::ste::run::derive_seed;
 use plumenet::ste::{
@@ -442,6 +442,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         buf.extend_from_slice(table.as_bytes());
         Ok(())
     })?;
+    save_png(&study_plot(&rows), &a.out.join("boxplots.png"))?;
     print!("{table}");
     println!("wrote {}", a.out.display());
     Ok(())

@@ -12,6 +12,7 @@ use crate::io;
 use crate::layout::Layout;
 
 pub mod belief;
+pub mod boxplot;
 
 /// Decades shown below the maximum on a log scale.
 pub const LOG_DECADES: f64 = 4.0;

@@ -6,10 +6,13 @@
 //! are uniform over the prior's support (free space at least 0.25 m from walls and obstacles),
 //! starts uniform over the positions the robot may occupy.
 
+use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
+use crate::report::boxplot::{BoxGroup, render_boxplots};
+use crate::report::stack_vertical;
 use crate::ste::features::Feature;
 use crate::ste::run::{
     EpisodeConfig, World, derive_seed, random_source, random_start, run_episode,
@@ -193,4 +196,34 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
             }
         })
         .collect()
+}
+
+/// The study's picture: box plots of error (top) and iterations (bottom), one group per
+/// feature and one box per sensor.
+pub fn study_plot(rows: &[RunRow]) -> RgbImage {
+    let panel = |title: &str, metric: fn(&RunRow) -> f64| {
+        let mut groups: Vec<BoxGroup> = Vec::new();
+        for r in rows {
+            let g = match groups.iter().position(|g| g.label == r.feature) {
+                Some(g) => g,
+                None => {
+                    groups.push(BoxGroup {
+                        label: r.feature.clone(),
+                        boxes: Vec::new(),
+                    });
+                    groups.len() - 1
+                }
+            };
+            let boxes = &mut groups[g].boxes;
+            match boxes.iter_mut().find(|b| b.0 == r.sensor) {
+                Some(b) => b.1.push(metric(r)),
+                None => boxes.push((r.sensor.clone(), vec![metric(r)])),
+            }
+        }
+        render_boxplots(title, &groups)
+    };
+    stack_vertical(&[
+        panel("localisation error (m)", |r| r.error_m),
+        panel("iterations", |r| r.iterations as f64),
+    ])
 }

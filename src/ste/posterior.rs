@@ -59,10 +59,10 @@ impl Sigmas {
     /// tuning section): value in ppm, the others on their `[0, 1]` scale.
     pub fn default_for(feature: Feature) -> Self {
         let (model, measurement) = match feature {
-            Feature::Value => (30.0, 30.0),
+            Feature::Value => (40.0, 40.0),
             Feature::FixedHit => (0.5, 0.5),
-            Feature::AdaptiveHit => (0.5, 0.5),
-            Feature::Rank => (0.25, 0.25),
+            Feature::AdaptiveHit => (0.7, 0.7),
+            Feature::Rank => (0.7, 0.7),
         };
         Self { model, measurement }
     }
@@ -426,7 +426,7 @@ pub struct Termination {
 impl Default for Termination {
     fn default() -> Self {
         Self {
-            entropy_nats: 2.5,
+            entropy_nats: 1.5,
             mass: 0.9,
             radius_m: 0.75,
             max_iterations: 30,

@@ -1,0 +1,547 @@
+//! The STE loop: sensor model, features, estimator, robot, episodes and replays.
+
+use std::sync::{Arc, OnceLock};
+
+use proptest::prelude::*;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use plumenet::Error;
+use plumenet::layout::Layout;
+use plumenet::plume::PhysicsSolver;
+use plumenet::ste::posterior::{entropy, prior_support};
+use plumenet::ste::replay::{read_log, replay};
+use plumenet::ste::robot::{Occupancy, path_length};
+use plumenet::ste::run::PRIOR_BAND_M;
+use plumenet::ste::{EpisodeConfig, RobotParams, Sampling};
+use plumenet::ste::{
+    Estimator, Feature, FeatureParams, FeatureTrack, MoxParams, MoxSensor, Sample, SensorPreset,
+    SteParams, World, run_episode,
+};
+
+use crate::common::wind_tunnel;
+
+/// The paper arena with the physics solver's bank, built once for all tests.
+fn world() -> &'static World {
+    static WORLD: OnceLock<World> = OnceLock::new();
+    WORLD.get_or_init(|| {
+        World::build(wind_tunnel(), &PhysicsSolver, 0.25, None)
+            .expect("paper arena builds")
+            .0
+    })
+}
+
+// ---------------------------------------------------------------- sensor
+
+#[test]
+fn steady_response_is_monotone_for_every_preset() {
+    for preset in SensorPreset::ALL {
+        let p = MoxParams::for_preset(preset);
+        let mut last = p.steady_voltage(0.0);
+        assert!(last > 0.0 && last < p.supply_v);
+        for k in 1..400 {
+            let v = p.steady_voltage(f64::from(k) * 0.02);
+            assert!(v > last, "{preset:?} not increasing at {k}");
+            assert!(v < p.supply_v);
+            last = v;
+        }
+    }
+}
+
+#[test]
+fn sensors_differ_in_nonlinearity() {
+    // Sensor I saturates: from 10 to 100 ppm its voltage grows far less than Sensor II's.
+    let ratio = |p: SensorPreset| {
+        let m = MoxParams::for_preset(p);
+        m.steady_voltage(1.0) / m.steady_voltage(0.1)
+    };
+    assert!(ratio(SensorPreset::SensorII) > 1.8 * ratio(SensorPreset::SensorI));
+}
+
+/// Response of a noise-free sensor after `t` seconds of a step from `from` to `to`.
+fn step_response(preset: SensorPreset, from: f64, to: f64, t: f64) -> f64 {
+    let mut s = MoxSensor::preset(preset, false).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    for _ in 0..2000 {
+        s.sample(from, 0.05, &mut rng); // settle at `from`
+    }
+    let v0 = s.voltage();
+    let steps = 1000;
+    for _ in 0..steps {
+        s.sample(to, t / f64::from(steps), &mut rng);
+    }
+    let target = s.params().steady_voltage(to);
+    (s.voltage() - v0) / (target - v0)
+}
+
+#[test]
+fn one_time_constant_gives_63_percent_of_a_step() {
+    let p = MoxParams::for_preset(SensorPreset::SensorII);
+    let rise = step_response(SensorPreset::SensorII, 0.0, 1.0, p.tau_res_s);
+    let fall = step_response(SensorPreset::SensorII, 1.0, 0.0, p.tau_rec_s);
+    let expected = 1.0 - (-1.0f64).exp();
+    assert!((rise - expected).abs() < 1e-6, "rise {rise}");
+    assert!((fall - expected).abs() < 1e-6, "fall {fall}");
+    // The recovery is slower: after tau_res a decay is not yet at 63%.
+    assert!(step_response(SensorPreset::SensorII, 1.0, 0.0, p.tau_res_s) < 0.45);
+}
+
+#[test]
+fn calibrated_reading_recovers_the_concentration() {
+    let p = MoxParams::for_preset(SensorPreset::Calibrated);
+    let mut s = MoxSensor::preset(SensorPreset::Calibrated, false).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    for c in [0.0, 0.05, 0.3, 1.0, 3.0] {
+        let mut reading = 0.0;
+        for _ in 0..600 {
+            reading = s.sample(c, 0.1, &mut rng);
+        }
+        let ppm = p.ppm_per_unit * c;
+        assert!(
+            (reading - ppm).abs() < 1e-3 * ppm.max(1.0),
+            "{c}: {reading} vs {ppm}"
+        );
+    }
+}
+
+#[test]
+fn noise_has_the_documented_size() {
+    let p = MoxParams::for_preset(SensorPreset::SensorI);
+    let mut s = MoxSensor::preset(SensorPreset::SensorI, true).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let c = 0.5;
+    for _ in 0..600 {
+        s.sample(c, 0.1, &mut rng);
+    }
+    let v = p.steady_voltage(c);
+    let n = 20000;
+    let xs: Vec<f64> = (0..n).map(|_| s.sample(c, 0.1, &mut rng) - v).collect();
+    let mean = xs.iter().sum::<f64>() / f64::from(n);
+    let sd = (xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / f64::from(n)).sqrt();
+    let expected = p.sigma_b + p.sigma_k * v;
+    assert!(mean.abs() < 0.03 * expected, "bias {mean}");
+    assert!((sd / expected - 1.0).abs() < 0.03, "sd {sd} vs {expected}");
+}
+
+#[test]
+fn bad_sensor_parameters_are_refused() {
+    let mut p = MoxParams::for_preset(SensorPreset::SensorII);
+    p.r0_ohm = f64::NAN;
+    assert!(matches!(MoxSensor::new(p, false), Err(Error::Parameter(_))));
+    let mut p = MoxParams::for_preset(SensorPreset::SensorII);
+    p.tau_rec_s = 0.0;
+    assert!(matches!(MoxSensor::new(p, false), Err(Error::Parameter(_))));
+}
+
+// ---------------------------------------------------------------- features
+
+fn edf_brute_force(values: &[f64]) -> Vec<f32> {
+    let n = values.len() as f64;
+    values
+        .iter()
+        .map(|&d| (values.iter().filter(|&&e| e <= d).count() as f64 / n) as f32)
+        .collect()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    /// The sorted-list EDF, updated chunk by chunk, equals the O(n^2) definition, ties included.
+    #[test]
+    fn incremental_edf_equals_brute_force(
+        values in prop::collection::vec(0u8..12, 1..120),
+        cuts in prop::collection::vec(1usize..30, 0..8),
+    ) {
+        let values: Vec<f64> = values.into_iter().map(f64::from).collect();
+        let mut track = FeatureTrack::new(Feature::Rank, FeatureParams::default());
+        let mut at: usize = 0;
+        for c in cuts.into_iter().chain(std::iter::once(usize::MAX)) {
+            let end = at.saturating_add(c).min(values.len());
+            track.extend(&values[at..end]);
+            let expected = edf_brute_force(&values[..end]);
+            prop_assert_eq!(track.features(), expected.as_slice());
+            at = end;
+            if at == values.len() {
+                break;
+            }
+        }
+    }
+
+    /// Rank features, and the whole rank posterior, do not change under a strictly increasing
+    /// transform of the readings: bit for bit.
+    #[test]
+    fn rank_posterior_is_invariant_under_increasing_transforms(
+        seed in 0u64..1000,
+        scale in 0.01f64..100.0,
+        offset in -5.0f64..5.0,
+    ) {
+        let samples = synthetic_samples(seed, 60);
+        let transformed: Vec<Sample> = samples
+            .iter()
+            .map(|s| Sample { value: offset + scale * s.value.exp() + s.value.powi(3), ..*s })
+            .collect();
+        let a = estimate(Feature::Rank, &samples);
+        let b = estimate(Feature::Rank, &transformed);
+        prop_assert_eq!(a.measured_features(), b.measured_features());
+        prop_assert_eq!(a.posterior(), b.posterior());
+    }
+}
+
+/// Random readings at random free positions, in two batches (so the merge path runs).
+fn synthetic_samples(seed: u64, n: usize) -> Vec<Sample> {
+    use rand::RngExt;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let layout = &world().layout;
+    let mut out = Vec::new();
+    while out.len() < n {
+        let (x, y) = (rng.random_range(0.5..17.5), rng.random_range(0.3..3.7));
+        if layout.is_free(x, y) {
+            out.push(Sample {
+                t: out.len() as f64 * 0.1,
+                x,
+                y,
+                value: rng.random_range(-2.0..2.0),
+            });
+        }
+    }
+    out
+}
+
+fn support() -> Vec<bool> {
+    let w = world();
+    prior_support(&w.layout, w.sampler.candidates(), 0.07, PRIOR_BAND_M).unwrap()
+}
+
+fn estimate(feature: Feature, samples: &[Sample]) -> Estimator {
+    let mut est = Estimator::new(
+        Arc::clone(&world().sampler),
+        &support(),
+        SteParams::for_feature(feature),
+    )
+    .unwrap();
+    let half = samples.len() / 2;
+    est.update(&samples[..half]).unwrap();
+    est.update(&samples[half..]).unwrap();
+    est
+}
+
+#[test]
+fn hit_features_follow_their_definitions() {
+    let params = FeatureParams {
+        fixed_threshold: 1.5,
+        lambda: 0.5,
+    };
+    let values = [1.0, 2.0, 2.0, 1.0, 3.0, 1.5];
+    let mut fixed = FeatureTrack::new(Feature::FixedHit, params);
+    fixed.extend(&values);
+    assert_eq!(fixed.features(), [0.0, 1.0, 1.0, 0.0, 1.0, 0.0]);
+    // Thresholds 1, 1.5, 1.75, 1.375, 2.1875: hits where the reading beats the last threshold.
+    let mut adaptive = FeatureTrack::new(Feature::AdaptiveHit, params);
+    adaptive.extend(&values[..2]);
+    adaptive.extend(&values[2..]);
+    assert_eq!(adaptive.features(), [0.0, 1.0, 1.0, 0.0, 1.0, 0.0]);
+    let mut value = FeatureTrack::new(Feature::Value, params);
+    value.extend(&values);
+    assert_eq!(value.features(), [1.0, 2.0, 2.0, 1.0, 3.0, 1.5]);
+}
+
+// ---------------------------------------------------------------- estimator
+
+#[test]
+fn prior_is_uniform_on_its_support_and_zero_elsewhere() {
+    let est = Estimator::new(
+        Arc::clone(&world().sampler),
+        &support(),
+        SteParams::for_feature(Feature::Rank),
+    )
+    .unwrap();
+    let allowed = support().iter().filter(|&&s| s).count();
+    assert!(allowed > 900 && allowed < world().sampler.len());
+    assert!((est.entropy() - (allowed as f64).ln()).abs() < 1e-9);
+    for (&p, &[x, y]) in est.posterior().iter().zip(est.candidates()) {
+        let edge = x.min(y).min(18.0 - x).min(4.0 - y);
+        if edge < PRIOR_BAND_M {
+            assert_eq!(p, 0.0, "boundary band candidate ({x}, {y})");
+        }
+    }
+}
+
+/// The likelihood, brute force: features from scratch, the paper's formula, no sensor lag.
+#[test]
+fn posterior_matches_the_papers_formula_by_brute_force() {
+    let samples = synthetic_samples(7, 50);
+    for feature in Feature::ALL {
+        let mut params = SteParams::for_feature(feature);
+        params.sensor_lag_s = None;
+        let mut est = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap();
+        est.update(&samples).unwrap();
+        let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
+        let sampler = &world().sampler;
+        let features = |v: &[f64]| -> Vec<f64> {
+            match feature {
+                Feature::Rank => edf_brute_force(v).iter().map(|&x| f64::from(x)).collect(),
+                Feature::Value => v.to_vec(),
+                Feature::FixedHit => v
+                    .iter()
+                    .map(|&x| f64::from(u8::from(x > params.features.fixed_threshold)))
+                    .collect(),
+                Feature::AdaptiveHit => {
+                    let mut t = v[0];
+                    let mut out = vec![0.0];
+                    for &x in &v[1..] {
+                        out.push(f64::from(u8::from(x > t)));
+                        t = params.features.lambda * t + (1.0 - params.features.lambda) * x;
+                    }
+                    out
+                }
+            }
+        };
+        let m = features(&values);
+        let n = samples.len() as f64;
+        let var = params.sigmas.model.powi(2) + params.sigmas.measurement.powi(2);
+        // Estimated concentrations through the estimator's own interpolation (not under test).
+        let rows: Vec<Vec<f32>> = samples
+            .iter()
+            .map(|s| {
+                let mut row = vec![0.0f32; sampler.len()];
+                sampler.gather(s.x, s.y, params.ppm_per_unit as f32, &mut row);
+                row
+            })
+            .collect();
+        let log_lik: Vec<f64> = (0..sampler.len())
+            .map(|k| {
+                let c: Vec<f64> = rows.iter().map(|r| f64::from(r[k])).collect();
+                let e = features(&c);
+                -0.5 * n / (n + 1.0) * e.iter().zip(&m).map(|(e, m)| (e - m).powi(2)).sum::<f64>()
+                    / var
+            })
+            .collect();
+        let sup = support();
+        let top = log_lik
+            .iter()
+            .zip(&sup)
+            .filter(|p| *p.1)
+            .map(|p| *p.0)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let w: Vec<f64> = log_lik
+            .iter()
+            .zip(&sup)
+            .map(|(l, &s)| if s { (l - top).exp() } else { 0.0 })
+            .collect();
+        let total: f64 = w.iter().sum();
+        for (k, (&p, wk)) in est.posterior().iter().zip(&w).enumerate() {
+            assert!(
+                (p - wk / total).abs() < 1e-6,
+                "{feature:?} candidate {k}: {p} vs {}",
+                wk / total
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_samples_are_refused_and_change_nothing() {
+    let mut est = estimate(Feature::Rank, &synthetic_samples(1, 20));
+    let before = est.posterior().to_vec();
+    let good = Sample {
+        t: 10.0,
+        x: 3.0,
+        y: 2.0,
+        value: 1.0,
+    };
+    for bad in [
+        Sample {
+            value: f64::NAN,
+            ..good
+        },
+        Sample { x: 19.0, ..good },
+        Sample {
+            y: f64::INFINITY,
+            ..good
+        },
+    ] {
+        assert!(matches!(est.update(&[good, bad]), Err(Error::Parameter(_))));
+        assert_eq!(est.posterior(), before.as_slice());
+        assert_eq!(est.len(), 20);
+    }
+}
+
+// ---------------------------------------------------------------- robot
+
+#[test]
+fn paths_avoid_inflated_obstacles() {
+    let layout = wind_tunnel();
+    let occ = Occupancy::new(&layout, 0.12).unwrap();
+    // From below the first block to above the second: the straight line crosses both.
+    let path = occ.plan([5.0, 1.0], [12.5, 3.0]).expect("reachable");
+    assert!(path_length(&path) >= (7.5f64).hypot(2.0) - 1e-9);
+    for w in path.windows(2) {
+        assert!(
+            occ.segment_free(w[0], w[1]),
+            "segment {w:?} hits an obstacle"
+        );
+    }
+    for [x, y] in sample_along(&path) {
+        let clearance = layout
+            .spec()
+            .obstacles
+            .iter()
+            .map(|o| o.signed_distance(x, y))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            clearance > 0.07,
+            "robot disc touches an obstacle at ({x}, {y})"
+        );
+    }
+    assert!(!occ.is_free(7.0, 1.0) && !occ.is_free(7.0, 0.05));
+}
+
+fn sample_along(path: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let len = path_length(path);
+    (0..=200)
+        .map(|k| plumenet::ste::robot::point_at(path, len * f64::from(k) / 200.0))
+        .collect()
+}
+
+// ---------------------------------------------------------------- episodes
+
+fn stop_sense_go_config(feature: Feature) -> EpisodeConfig {
+    let mut c = EpisodeConfig::new(feature, SensorPreset::Calibrated);
+    c.sensor_noise = false;
+    c.robot = RobotParams {
+        sampling: Sampling::stop_sense_go(),
+        ..RobotParams::default()
+    };
+    c
+}
+
+#[test]
+fn noise_free_stop_sense_go_with_the_solver_lands_within_one_cell() {
+    let source = [4.125, 2.125];
+    for seed in 1..=3 {
+        let ep = run_episode(
+            world(),
+            &stop_sense_go_config(Feature::Value),
+            source,
+            [10.0, 1.0],
+            seed,
+            false,
+        )
+        .unwrap();
+        // One candidate cell, diagonal neighbours included.
+        assert!(
+            ep.error_m <= 0.25 * 2f64.sqrt() + 1e-9,
+            "seed {seed}: estimate {:?}, error {}",
+            ep.estimate,
+            ep.error_m
+        );
+        assert!(ep.iterations <= 30);
+        assert!(ep.samples.len() >= ep.iterations);
+    }
+}
+
+#[test]
+fn episodes_are_reproducible_from_their_seed() {
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let run = |seed| run_episode(world(), &config, [5.1, 2.6], [14.0, 1.0], seed, false).unwrap();
+    let (a, b, c) = (run(5), run(5), run(6));
+    assert_eq!(a.samples, b.samples);
+    assert_eq!(a.posterior, b.posterior);
+    assert_eq!(a.estimate, b.estimate);
+    assert_ne!(a.samples, c.samples);
+    // Sense-in-motion: one sample per 0.1 s tick, the robot never faster than 0.27 m/s.
+    assert_eq!(a.samples.len() + 1, a.trajectory.len());
+    for w in a.trajectory.windows(2) {
+        let speed = (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]) / (w[1][0] - w[0][0]);
+        assert!(speed <= 0.27 + 1e-9, "speed {speed}");
+    }
+}
+
+#[test]
+fn bad_episode_inputs_are_refused() {
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let inside_block = run_episode(world(), &config, [7.0, 1.0], [14.0, 1.0], 0, false);
+    assert!(matches!(inside_block, Err(Error::Source { .. })));
+    let start_on_wall = run_episode(world(), &config, [5.0, 2.0], [14.0, 0.02], 0, false);
+    assert!(matches!(start_on_wall, Err(Error::Source { .. })));
+    let nan = run_episode(world(), &config, [f64::NAN, 2.0], [14.0, 1.0], 0, false);
+    assert!(matches!(nan, Err(Error::Source { .. })));
+}
+
+// ---------------------------------------------------------------- replay
+
+/// A lawn-mower sweep over the arena with readings from the mean field of `source`, passed
+/// through Sensor II's steady response (raw volts): a monotone but very nonlinear transform.
+fn synthetic_log(layout: &Layout, source: [f64; 2]) -> String {
+    let field = plumenet::physics::transport::Transport::new(layout, &world().wind)
+        .unwrap()
+        .solve(source[0], source[1])
+        .unwrap();
+    let sensor = MoxParams::for_preset(SensorPreset::SensorII);
+    let mut csv = String::from("t,x,y,value\n");
+    let mut t = 0.0;
+    for row in 0..7 {
+        let y = 0.35 + 0.55 * f64::from(row);
+        for col in 0..70 {
+            let x = 0.3 + 0.25 * f64::from(col);
+            if layout.is_free(x, y) {
+                let (j, i) = layout.cell_of(x, y);
+                let v = sensor.steady_voltage(field[[j, i]]);
+                csv.push_str(&format!("{t:.1},{x:.3},{y:.3},{v:.6}\n"));
+                t += 0.1;
+            }
+        }
+    }
+    csv
+}
+
+#[test]
+fn replay_of_a_synthetic_log_recovers_its_source() {
+    let tmp = tempfile::tempdir().unwrap();
+    let layout = wind_tunnel();
+    for source in [[4.125, 2.875], [9.375, 1.125]] {
+        let path = tmp.path().join("log.csv");
+        std::fs::write(&path, synthetic_log(&layout, source)).unwrap();
+        let samples = read_log(&path).unwrap();
+        let mut params = SteParams::for_feature(Feature::Rank);
+        params.sensor_lag_s = None;
+        let est = replay(Arc::clone(&world().sampler), params, 0.07, &samples).unwrap();
+        let [x, y] = est.estimate();
+        assert!(
+            (x - source[0]).hypot(y - source[1]) <= 0.25 * 2f64.sqrt() + 1e-9,
+            "source {source:?}, estimate ({x}, {y})"
+        );
+        let allowed = support().iter().filter(|&&s| s).count() as f64;
+        let h = entropy(est.posterior());
+        assert!(h < allowed.ln() - 1.0, "entropy {h} barely below the prior's");
+    }
+}
+
+#[test]
+fn bad_logs_give_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cases = [
+        ("t,x,y\n0,1,1\n", "missing column 'value'"),
+        ("t,x,y,value\n", "no readings"),
+        ("", "missing column 't'"),
+        (
+            "t,x,y,value\n0,1,1,NaN\n",
+            "value = 'NaN' is not a finite number",
+        ),
+        ("t,x,y,value\n0,1,1,abc\n", "not a finite number"),
+        ("t,x,y,value\n0,1,1,1\n1,1\n", "line 3"),
+        ("t,x,y,value\n1,1,1,1\n0,1,1,1\n", "time goes backwards"),
+    ];
+    for (k, (text, needle)) in cases.iter().enumerate() {
+        let path = tmp.path().join(format!("bad{k}.csv"));
+        std::fs::write(&path, text).unwrap();
+        let err = read_log(&path).unwrap_err();
+        assert!(matches!(err, Error::Log { .. }), "{text:?}: {err}");
+        assert!(err.to_string().contains(needle), "{text:?}: {err}");
+    }
+    // Columns in any order, extra columns ignored.
+    let path = tmp.path().join("ok.csv");
+    std::fs::write(&path, "value,extra,y,x,t\n2.5,a,1.5,3.0,0.0\n").unwrap();
+    let s = read_log(&path).unwrap();
+    assert_eq!((s[0].t, s[0].x, s[0].y, s[0].value), (0.0, 3.0, 1.5, 2.5));
+}
