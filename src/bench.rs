@@ -3,19 +3,25 @@
 //! [`time_bank`] measures, as medians over repeats: the wind solve, the factorisation of the
 //! transport operator, one source, and the whole candidate bank. [`export_system`] writes the
 //! same transport system for `scripts/superlu_bench.py` (scipy's SuperLU) so both are timed in
-//! one `plumenet bench` run.
+//! one `plumenet bench` run. [`time_ste_update`] times one STE update per feature against the
+//! floor of reading the estimate matrix once (`plumenet bench-ste`).
 
 use std::path::Path;
 use std::time::Instant;
 
 use faer::Mat;
 use ndarray::Array1;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 use crate::error::Result;
 use crate::io;
 use crate::layout::Layout;
 use crate::physics::transport::Transport;
 use crate::physics::wind::WindField;
+use crate::ste::posterior::prior_support;
+use crate::ste::run::PRIOR_BAND_M;
+use crate::ste::{Estimator, Feature, Sample, SteParams, World};
 
 /// Median timings (seconds) of the physics bank on one layout.
 #[derive(Debug, Clone, PartialEq)]
@@ -131,4 +137,103 @@ pub fn export_system(transport: &Transport, candidates: &[[f64; 2]], dir: &Path)
     transport.solve_unknowns(&mut rhs);
     let solution = ndarray::Array2::from_shape_fn((n, candidates.len()), |(i, c)| rhs[(i, c)]);
     io::write_npy(&dir.join("plumenet_bank.npy"), &solution)
+}
+
+/// Median timings (seconds) of one STE update on one core.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SteTimings {
+    /// The feature timed.
+    pub feature: Feature,
+    /// One update: `batch` new readings on top of the others, posterior recomputed.
+    pub update_s: f64,
+    /// Reading an `N x n` estimate matrix once (a squared difference per entry): the floor.
+    pub floor_s: f64,
+    /// Candidates `N`.
+    pub candidates: usize,
+    /// Readings after the update, `n`.
+    pub samples: usize,
+}
+
+/// Times estimator updates of `batch` readings each (random free positions, random values), on
+/// a single thread: `repeats` successive updates that end at `total` readings, as in a run, so
+/// the vectors grow the way they do in practice. Also times the floor: touching every entry
+/// of the `N x total` estimate matrix once.
+///
+/// # Errors
+/// [`crate::Error::Parameter`] for `batch` not below `total`, and the estimator's errors.
+pub fn time_ste_update(
+    world: &World,
+    feature: Feature,
+    total: usize,
+    batch: usize,
+    repeats: usize,
+) -> Result<SteTimings> {
+    let repeats = repeats.max(1);
+    if batch == 0 || batch * repeats >= total {
+        return Err(crate::Error::Parameter(format!(
+            "{repeats} updates of {batch} readings must stay below the total {total}"
+        )));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .map_err(|e| crate::Error::Parameter(format!("cannot build a thread pool: {e}")))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let layout = &world.layout;
+    let mut samples = Vec::with_capacity(total);
+    while samples.len() < total {
+        let x = rng.random_range(0.2..layout.width() - 0.2);
+        let y = rng.random_range(0.2..layout.height() - 0.2);
+        if layout.is_free(x, y) {
+            let t = samples.len() as f64 * 0.1;
+            samples.push(Sample {
+                t,
+                x,
+                y,
+                value: rng.random_range(0.0..1.0),
+            });
+        }
+    }
+    let support = prior_support(layout, world.sampler.candidates(), 0.07, PRIOR_BAND_M)?;
+    let mut est = Estimator::new(
+        world.sampler.clone(),
+        &support,
+        SteParams::for_feature(feature),
+    )?;
+    let first = total - batch * repeats;
+    est.update(&samples[..first])?;
+    let n_cand = world.sampler.len();
+    let matrix: Vec<f32> = (0..n_cand * total)
+        .map(|k| (k % 97) as f32 * 0.01)
+        .collect();
+    let m: Vec<f32> = (0..total).map(|k| (k % 13) as f32 * 0.07).collect();
+    pool.install(|| {
+        let mut update = Vec::with_capacity(repeats);
+        let mut floor = Vec::with_capacity(repeats);
+        for r in 0..repeats {
+            let from = first + r * batch;
+            let ((), s) = timed(|| est.update(&samples[from..from + batch]))?;
+            update.push(s);
+            let (sum, s) = timed(|| {
+                Ok(matrix
+                    .chunks(total)
+                    .map(|row| {
+                        row.iter()
+                            .zip(&m)
+                            .map(|(e, m)| f64::from((e - m) * (e - m)))
+                            .sum::<f64>()
+                    })
+                    .sum::<f64>())
+            })?;
+            std::hint::black_box(sum);
+            floor.push(s);
+        }
+        Ok(SteTimings {
+            feature,
+            update_s: median(update),
+            floor_s: median(floor),
+            candidates: n_cand,
+            samples: total,
+        })
+    })
 }

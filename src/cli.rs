@@ -54,6 +54,8 @@ enum Command {
     Replay(ste::ReplayArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(ste::ExperimentArgs),
+    /// Time one STE update per feature (one core) and a whole simulated run.
+    BenchSte(ste::BenchSteArgs),
 }
 
 #[derive(Debug, Args)]
@@ -274,6 +276,7 @@ impl Cli {
             Command::Localize(a) => ste::localize(a),
             Command::Replay(a) => ste::replay_log(a),
             Command::Experiment(a) => ste::experiment(a),
+            Command::BenchSte(a) => ste::bench_ste(a),
         }
     }
 }

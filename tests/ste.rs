@@ -310,7 +310,12 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
             .collect();
         let log_lik: Vec<f64> = (0..sampler.len())
             .map(|k| {
-                let c: Vec<f64> = rows.iter().map(|r| f64::from(r[k])).collect();
+                let floor = params.detection_floor_ppm;
+                let c: Vec<f64> = rows
+                    .iter()
+                    .map(|r| f64::from(r[k]))
+                    .map(|c| if c < floor { 0.0 } else { c })
+                    .collect();
                 let e = features(&c);
                 -0.5 * n / (n + 1.0) * e.iter().zip(&m).map(|(e, m)| (e - m).powi(2)).sum::<f64>()
                     / var
@@ -486,7 +491,13 @@ fn synthetic_log(layout: &Layout, source: [f64; 2]) -> String {
             let x = 0.3 + 0.25 * f64::from(col);
             if layout.is_free(x, y) {
                 let (j, i) = layout.cell_of(x, y);
-                let v = sensor.steady_voltage(field[[j, i]]);
+                // Below 1 ppm the sensor sees clean air (the estimator's detection floor).
+                let c = field[[j, i]];
+                let v = sensor.steady_voltage(if c * sensor.ppm_per_unit < 1.0 {
+                    0.0
+                } else {
+                    c
+                });
                 csv.push_str(&format!("{t:.1},{x:.3},{y:.3},{v:.6}\n"));
                 t += 0.1;
             }
@@ -513,7 +524,10 @@ fn replay_of_a_synthetic_log_recovers_its_source() {
         );
         let allowed = support().iter().filter(|&&s| s).count() as f64;
         let h = entropy(est.posterior());
-        assert!(h < allowed.ln() - 1.0, "entropy {h} barely below the prior's");
+        assert!(
+            h < allowed.ln() - 1.0,
+            "entropy {h} barely below the prior's"
+        );
     }
 }
 

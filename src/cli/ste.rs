@@ -469,3 +469,63 @@ fn summary_table(summary: &[plumenet::ste::experiment::SummaryRow]) -> String {
     }
     t
 }
+
+#[derive(Debug, Args)]
+pub struct BenchSteArgs {
+    /// Layout JSON file.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// Readings after the last timed update.
+    #[arg(long, default_value_t = 3000)]
+    samples: usize,
+    /// Readings arriving in the timed update (one iteration's worth).
+    #[arg(long, default_value_t = 100)]
+    batch: usize,
+    /// Successive timed updates (medians are reported).
+    #[arg(long, default_value_t = 7)]
+    repeats: usize,
+    /// Write the figures as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
+    let layout = Layout::load(&a.layout)?;
+    let (world, _) = World::build(layout, &PhysicsSolver, 0.25, None)?;
+    println!(
+        "one STE update on one core: {} new readings, the last of {} successive updates ending at {} readings ({} candidates), medians",
+        a.batch,
+        a.repeats,
+        a.samples,
+        world.sampler.len()
+    );
+    let mut report = Vec::new();
+    for feature in Feature::ALL {
+        let t = plumenet::bench::time_ste_update(&world, feature, a.samples, a.batch, a.repeats)?;
+        println!(
+            "  {:13} update {:7.2} ms   floor (read N x n once) {:6.2} ms   ratio {:5.1}x",
+            feature.name(),
+            t.update_s * 1e3,
+            t.floor_s * 1e3,
+            t.update_s / t.floor_s
+        );
+        report.push(json!({
+            "feature": feature.name(), "update_ms": t.update_s * 1e3, "floor_ms": t.floor_s * 1e3,
+            "candidates": t.candidates, "samples": t.samples,
+        }));
+    }
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let ep = run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false)?;
+    println!(
+        "  whole run (rank, sensor-ii, solver bank ready, all cores): {:.2} s, {} iterations, {} readings",
+        ep.wall_time_s,
+        ep.iterations,
+        ep.samples.len()
+    );
+    if let Some(path) = &a.json {
+        let value =
+            json!({"updates": report, "run_s": ep.wall_time_s, "run_iterations": ep.iterations});
+        io::write_json(path, &value)?;
+    }
+    Ok(())
+}

@@ -168,47 +168,50 @@ impl<T: Reading> FeatureTrack<T> {
         }
     }
 
-    /// Sort the new values, merge them into the sorted list, and sweep the ranks.
+    /// Sort the new values, merge them into the sorted list, and assign the ranks in the same
+    /// pass: when a group of equal values ends at merged position `k`, each member gets `k / n`.
     fn update_ranks(&mut self, start: usize) {
         let mut fresh: Vec<(T, u32)> = self.values[start..]
             .iter()
             .enumerate()
             .map(|(k, &v)| (v, (start + k) as u32))
             .collect();
-        fresh.sort_by(|a, b| order(&a.0, &b.0));
-        self.scratch.clear();
-        self.scratch.reserve(self.sorted.len() + fresh.len());
-        let (mut a, mut b) = (self.sorted.iter().peekable(), fresh.iter().peekable());
-        loop {
-            let next = match (a.peek(), b.peek()) {
-                (Some(x), Some(y)) => {
-                    if order(&x.0, &y.0) == Ordering::Greater {
-                        b.next()
-                    } else {
-                        a.next()
-                    }
-                }
-                (Some(_), None) => a.next(),
-                (None, Some(_)) => b.next(),
-                (None, None) => break,
-            };
-            self.scratch.extend(next.copied());
-        }
-        std::mem::swap(&mut self.sorted, &mut self.scratch);
-        let n = self.sorted.len();
+        fresh.sort_unstable_by(|a, b| order(&a.0, &b.0));
+        let n = self.sorted.len() + fresh.len();
         self.features.resize(n, 0.0);
         let inv = 1.0 / n as f64;
-        let mut lo = 0;
-        while lo < n {
-            let mut hi = lo + 1;
-            while hi < n && order(&self.sorted[hi].0, &self.sorted[lo].0) == Ordering::Equal {
-                hi += 1;
+        let (old, new) = (&self.sorted, &fresh);
+        let out = &mut self.scratch;
+        let features = &mut self.features;
+        out.clear();
+        out.reserve(n);
+        let mut group = 0;
+        let (mut i, mut j) = (0, 0);
+        while i < old.len() || j < new.len() {
+            // Old values first among equals; ties get the same rank either way.
+            let take_old =
+                j == new.len() || (i < old.len() && order(&new[j].0, &old[i].0) != Ordering::Less);
+            let next = if take_old {
+                i += 1;
+                old[i - 1]
+            } else {
+                j += 1;
+                new[j - 1]
+            };
+            if let Some(last) = out.last()
+                && last.0 != next.0
+            {
+                let rank = (out.len() as f64 * inv) as f32;
+                for &(_, idx) in &out[group..] {
+                    features[idx as usize] = rank;
+                }
+                group = out.len();
             }
-            let rank = (hi as f64 * inv) as f32;
-            for &(_, idx) in &self.sorted[lo..hi] {
-                self.features[idx as usize] = rank;
-            }
-            lo = hi;
+            out.push(next);
         }
+        for &(_, idx) in &out[group..] {
+            features[idx as usize] = 1.0;
+        }
+        std::mem::swap(&mut self.sorted, &mut self.scratch);
     }
 }

@@ -16,6 +16,8 @@
 //! compared with a model that recovers too. This is our addition to the paper's method, for
 //! sense-in-motion; [`SteParams::sensor_lag_s`] = `None` turns it off.
 //!
+//! Estimated values below a detection floor (1 ppm) are then set to zero.
+//!
 //! The sum runs over all `n` readings so far (the posterior is recomputed from the uniform
 //! prior and all data at every update, since rank features change with every new reading). The prior is
 //! uniform over candidates outside the inflated obstacles and the boundary band, zero
@@ -87,6 +89,10 @@ pub struct SteParams {
     /// estimated concentration series (see [`Estimator`]); `None` compares the plume model's
     /// values directly, as the paper writes it.
     pub sensor_lag_s: Option<[f64; 2]>,
+    /// Estimated concentrations below this (ppm) are set to zero: a sensor cannot tell them
+    /// apart, and without the floor the rank feature would order samples by the plume model's
+    /// exponentially small upwind tails (values like 1e-20), which carry no physical meaning.
+    pub detection_floor_ppm: f64,
 }
 
 impl SteParams {
@@ -98,6 +104,7 @@ impl SteParams {
             sigmas: Sigmas::default_for(feature),
             ppm_per_unit: 100.0,
             sensor_lag_s: Some([2.04, 4.57]),
+            detection_floor_ppm: 1.0,
         }
     }
 
@@ -117,6 +124,12 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "sensor time constants must be positive, got {:?}",
                 self.sensor_lag_s
+            )));
+        }
+        if !(self.detection_floor_ppm.is_finite() && self.detection_floor_ppm >= 0.0) {
+            return Err(Error::Parameter(format!(
+                "detection floor must be finite and non-negative, got {}",
+                self.detection_floor_ppm
             )));
         }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
@@ -287,6 +300,10 @@ impl Estimator {
         }
         if let Some(taus) = self.params.sensor_lag_s {
             self.apply_lag(samples, &mut gathered, taus);
+        }
+        let floor = self.params.detection_floor_ppm as f32;
+        for c in gathered.iter_mut().filter(|c| **c < floor) {
+            *c = 0.0;
         }
         let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
         self.measured.extend(&values);
