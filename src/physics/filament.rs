@@ -13,7 +13,7 @@
 //!
 //! The defaults (8 filaments/s, 5 cm initial width, 95% of `D` in the walk) were chosen with
 //! the MOX sensor in mind: readings 2-4 m downwind have a coefficient of variation near 1 and
-//! 10-25% of them are below a tenth of the mean (intermittent, as a real plume), while a
+//! 5-25% of them are below a tenth of the mean (intermittent, as a real plume), while a
 //! sensor's long-run average stays within about 20% of the mean field. With 4 filaments/s and
 //! 97% walk the plume was so patchy (CV 2) that the sensor's nonlinearity pulled its average to
 //! a third of the mean near the source, a gap no plume model could bridge.
