@@ -378,6 +378,21 @@ impl Layout {
         Ok(())
     }
 
+    /// Distance (m) from a point to the nearest of the arena's four edges (walls, inlet, outlet).
+    pub fn edge_distance(&self, x: f64, y: f64) -> f64 {
+        x.min(y).min(self.width() - x).min(self.height() - y)
+    }
+
+    /// Signed distance (m) from a point to the nearest obstacle, negative inside one; infinite
+    /// without obstacles.
+    pub fn obstacle_distance(&self, x: f64, y: f64) -> f64 {
+        self.spec
+            .obstacles
+            .iter()
+            .map(|o| o.signed_distance(x, y))
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Signed distance (m) from each cell centre to the nearest solid surface (obstacles and the
     /// side walls), negative inside obstacles. Shape `[ny, nx]`.
     pub fn signed_distance(&self) -> Array2<f64> {

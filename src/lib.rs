@@ -9,12 +9,18 @@
 //! Layout (JSON) --> wind field (steady 2D flow around obstacles)        physics::wind
 //!               --> mean concentration c(x, y | source)                  physics::transport
 //!               --> dataset (many layouts x sources, .npy + manifest)    dataset
+//!               --> PlumeNet training, models/<name>/                    surrogate
+//! Layout + model --> bank: one predicted field per candidate cell         plume (cached)
 //! Reality: intermittent filament plume over the same wind                physics::filament
+//!          --> MOX sensor on a robot driving A* paths at 10 Hz           ste::sensor, ste::robot
+//! STE: features --> likelihood --> posterior --> planner --> ...         ste
 //! ```
 //!
 //! Modules own one box each: [`layout`] (arena, obstacles, validation), [`physics`] (wind,
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
-//! [`report`] (PNG rendering), [`io`] (atomic files), [`bench`] (timings).
+//! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
+//! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (PNG
+//! rendering), [`io`] (atomic files), [`bench`] (timings).
 
 #![warn(missing_docs)]
 

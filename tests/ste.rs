@@ -387,12 +387,7 @@ fn paths_avoid_inflated_obstacles() {
         );
     }
     for [x, y] in sample_along(&path) {
-        let clearance = layout
-            .spec()
-            .obstacles
-            .iter()
-            .map(|o| o.signed_distance(x, y))
-            .fold(f64::INFINITY, f64::min);
+        let clearance = layout.obstacle_distance(x, y);
         assert!(
             clearance > 0.07,
             "robot disc touches an obstacle at ({x}, {y})"

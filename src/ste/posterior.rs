@@ -156,14 +156,7 @@ pub fn prior_support(
     let support: Vec<bool> = candidates
         .iter()
         .map(|&[x, y]| {
-            let edge = x.min(y).min(layout.width() - x).min(layout.height() - y);
-            let obstacle = layout
-                .spec()
-                .obstacles
-                .iter()
-                .map(|o| o.signed_distance(x, y))
-                .fold(f64::INFINITY, f64::min);
-            edge >= band_m && obstacle >= inflate_m
+            layout.edge_distance(x, y) >= band_m && layout.obstacle_distance(x, y) >= inflate_m
         })
         .collect();
     if !support.iter().any(|&s| s) {

@@ -221,14 +221,9 @@ pub fn random_start(layout: &Layout, robot: &RobotParams, seed: u64) -> Result<[
 /// [`Error::Parameter`] when there is no such point.
 pub fn random_source(layout: &Layout, seed: u64) -> Result<[f64; 2]> {
     draw_point(layout, seed, "source", |x, y| {
-        let edge = x.min(y).min(layout.width() - x).min(layout.height() - y);
-        let obstacle = layout
-            .spec()
-            .obstacles
-            .iter()
-            .map(|o| o.signed_distance(x, y))
-            .fold(f64::INFINITY, f64::min);
-        edge >= PRIOR_BAND_M && obstacle >= PRIOR_BAND_M && layout.is_free(x, y)
+        layout.edge_distance(x, y) >= PRIOR_BAND_M
+            && layout.obstacle_distance(x, y) >= PRIOR_BAND_M
+            && layout.is_free(x, y)
     })
 }
 
