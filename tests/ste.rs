@@ -16,7 +16,7 @@ use plumenet::ste::run::PRIOR_BAND_M;
 use plumenet::ste::{EpisodeConfig, RobotParams, Sampling};
 use plumenet::ste::{
     Estimator, Feature, FeatureParams, FeatureTrack, MoxParams, MoxSensor, Sample, SensorPreset,
-    SteParams, World, run_episode,
+    SteParams, Termination, World, run_episode,
 };
 
 use crate::common::wind_tunnel;
@@ -553,4 +553,41 @@ fn bad_logs_give_clear_errors() {
     std::fs::write(&path, "value,extra,y,x,t\n2.5,a,1.5,3.0,0.0\n").unwrap();
     let s = read_log(&path).unwrap();
     assert_eq!((s[0].t, s[0].x, s[0].y, s[0].value), (0.0, 3.0, 1.5, 2.5));
+}
+
+#[test]
+fn termination_needs_a_stable_concentrated_belief() {
+    let est = estimate(Feature::Rank, &synthetic_samples(2, 40));
+    let loose = Termination {
+        entropy_nats: 100.0,
+        mass: 0.9,
+        radius_m: 30.0,
+        max_iterations: 30,
+        stable_iterations: 1,
+    };
+    assert!(loose.concentrated(&est) && loose.converged(&est, &[]));
+    let tight = Termination {
+        entropy_nats: 0.5,
+        ..loose
+    };
+    assert!(
+        !tight.concentrated(&est),
+        "a 40-reading random posterior is not concentrated"
+    );
+    let stable = Termination {
+        stable_iterations: 3,
+        radius_m: 0.75,
+        ..loose
+    };
+    let here = est.estimate();
+    let far = [here[0] + 40.0, here[1]];
+    let radius_ok = Termination {
+        radius_m: 30.0,
+        ..stable
+    };
+    assert!(radius_ok.converged(&est, &[(true, here), (true, here)]));
+    assert!(!radius_ok.converged(&est, &[(true, here)]));
+    assert!(!radius_ok.converged(&est, &[(false, here), (true, here)]));
+    // An estimate that jumped further than the radius two iterations ago blocks the stop.
+    assert!(!radius_ok.converged(&est, &[(true, far), (true, here)]));
 }

@@ -198,6 +198,10 @@ pub struct RunArgs {
     /// Entropy (nats) below which the run may stop (default: the tuned value).
     #[arg(long)]
     entropy_threshold: Option<f64>,
+    /// Consecutive concentrated iterations, around the same estimate, needed to stop
+    /// (1 = the paper's rule alone).
+    #[arg(long, default_value_t = 1)]
+    stable_iterations: usize,
 }
 
 impl RunArgs {
@@ -208,6 +212,7 @@ impl RunArgs {
         c.planner = self.planner.into();
         c.sensor_noise = !self.noise_free;
         c.termination.max_iterations = self.max_iterations;
+        c.termination.stable_iterations = self.stable_iterations;
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;
         }

@@ -431,6 +431,9 @@ pub struct Termination {
     pub radius_m: f64,
     /// Hard limit on iterations (the paper's 30 in simulation).
     pub max_iterations: usize,
+    /// The belief must have been concentrated, with the MAP cell within `radius_m` of the
+    /// current one, for this many consecutive iterations (1 = the paper's rule alone).
+    pub stable_iterations: usize,
 }
 
 impl Default for Termination {
@@ -440,6 +443,7 @@ impl Default for Termination {
             mass: 0.9,
             radius_m: 0.75,
             max_iterations: 30,
+            stable_iterations: 1,
         }
     }
 }
@@ -447,7 +451,7 @@ impl Default for Termination {
 impl Termination {
     /// Whether the belief is concentrated: entropy below the threshold and the credible set
     /// confined around the MAP cell.
-    pub fn converged(&self, est: &Estimator) -> bool {
+    pub fn concentrated(&self, est: &Estimator) -> bool {
         if est.is_empty() || est.entropy() >= self.entropy_nats {
             return false;
         }
@@ -456,5 +460,20 @@ impl Termination {
             let [x, y] = est.candidates()[k];
             (x - mx).hypot(y - my) <= self.radius_m
         })
+    }
+
+    /// Whether to stop: the belief is concentrated and `recent` (whether it was concentrated,
+    /// and the MAP estimate, at each earlier iteration, oldest first) shows it concentrated
+    /// around the same place for the last `stable_iterations` iterations, this one included.
+    pub fn converged(&self, est: &Estimator, recent: &[(bool, [f64; 2])]) -> bool {
+        if !self.concentrated(est) {
+            return false;
+        }
+        let need = self.stable_iterations.saturating_sub(1);
+        let [mx, my] = est.estimate();
+        recent.len() >= need
+            && recent[recent.len() - need..]
+                .iter()
+                .all(|&(c, [x, y])| c && (x - mx).hypot(y - my) <= self.radius_m)
     }
 }

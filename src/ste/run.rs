@@ -366,6 +366,7 @@ pub fn run_episode(
     let mut history = Vec::new();
     let mut samples = Vec::new();
     let mut converged = false;
+    let mut recent = Vec::new();
     for iteration in 1..=config.termination.max_iterations {
         let plan = planner.next(&est, &occupancy, field.position)?;
         let fresh = field.drive(&plan.path, &config.robot);
@@ -381,10 +382,11 @@ pub fn run_episode(
             posterior: keep_posteriors.then(|| est.posterior().to_vec()),
             trajectory_len: field.trajectory.len(),
         });
-        if config.termination.converged(&est) {
+        if config.termination.converged(&est, &recent) {
             converged = true;
             break;
         }
+        recent.push((config.termination.concentrated(&est), est.estimate()));
     }
     let estimate = est.estimate();
     Ok(Episode {
