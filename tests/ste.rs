@@ -591,3 +591,47 @@ fn termination_needs_a_stable_concentrated_belief() {
     // An estimate that jumped further than the radius two iterations ago blocks the stop.
     assert!(!radius_ok.converged(&est, &[(true, far), (true, here)]));
 }
+
+#[test]
+fn clean_air_ties_group_noise_and_survive_gain_and_offset() {
+    use plumenet::ste::posterior::clean_air_ties;
+    // Clean air (noise around 0.3) then a plume passage.
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let mut values: Vec<f64> = (0..200)
+        .map(|k| {
+            let gas = if (120..160).contains(&k) { 2.0 } else { 0.0 };
+            0.3 + gas
+                + rand_distr::Distribution::<f64>::sample(&rand_distr::StandardNormal, &mut rng)
+                    * 0.01
+        })
+        .collect();
+    clean_air_ties(&mut values);
+    // The baseline is the 5th percentile and the band three noise levels above it, so about
+    // nine in ten clean-air readings join the tie group.
+    let base = values.iter().copied().fold(f64::INFINITY, f64::min);
+    let tied = values[..120].iter().filter(|&&v| v == base).count();
+    assert!(tied >= 100, "only {tied} of 120 clean-air readings tie");
+    assert!(values[120..160].iter().all(|&v| v > base + 1.0), "gas kept");
+
+    // With the option on, the rank posterior is still unchanged by gain and offset.
+    let samples = synthetic_samples(11, 80);
+    let affine: Vec<Sample> = samples
+        .iter()
+        .map(|s| Sample {
+            value: 3.5 * s.value - 1.25,
+            ..*s
+        })
+        .collect();
+    let run = |s: &[Sample]| {
+        let mut params = SteParams::for_feature(Feature::Rank);
+        params.clean_air_ties = true;
+        let mut est = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap();
+        est.update(&s[..40]).unwrap();
+        est.update(&s[40..]).unwrap();
+        est.posterior().to_vec()
+    };
+    let (a, b) = (run(&samples), run(&affine));
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() < 1e-12, "{x} vs {y}");
+    }
+}

@@ -101,6 +101,11 @@ pub struct FeatureArgs {
     /// response and recovery dynamics first (the paper's form).
     #[arg(long)]
     no_lag_model: bool,
+    /// Rank only: readings within three noise levels of the clean-air baseline tie (noise and
+    /// baseline estimated from the readings themselves; breaks exact invariance under
+    /// nonlinear transforms).
+    #[arg(long)]
+    clean_air_ties: bool,
 }
 
 impl FeatureArgs {
@@ -121,6 +126,7 @@ impl FeatureArgs {
         if self.no_lag_model {
             p.sensor_lag_s = None;
         }
+        p.clean_air_ties = self.clean_air_ties;
         p
     }
 }

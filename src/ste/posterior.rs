@@ -93,6 +93,10 @@ pub struct SteParams {
     /// apart, and without the floor the rank feature would order samples by the plume model's
     /// exponentially small upwind tails (values like 1e-20), which carry no physical meaning.
     pub detection_floor_ppm: f64,
+    /// Rank only: treat readings within three noise levels of the clean-air baseline as one
+    /// tie group (see [`clean_air_ties`]). Off by default: it makes the rank posterior depend
+    /// on reading magnitudes, so it is no longer invariant under every increasing transform.
+    pub clean_air_ties: bool,
 }
 
 impl SteParams {
@@ -105,6 +109,7 @@ impl SteParams {
             ppm_per_unit: 100.0,
             sensor_lag_s: Some([2.04, 4.57]),
             detection_floor_ppm: 1.0,
+            clean_air_ties: false,
         }
     }
 
@@ -299,8 +304,15 @@ impl Estimator {
             *c = 0.0;
         }
         let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
-        self.measured.extend(&values);
         self.edf.extend(&values);
+        if self.params.clean_air_ties && self.params.feature == Feature::Rank {
+            let mut all = self.edf.values().to_vec();
+            clean_air_ties(&mut all);
+            self.measured = FeatureTrack::new(self.params.feature, self.params.features);
+            self.measured.extend(&all);
+        } else {
+            self.measured.extend(&values);
+        }
         self.positions.extend(samples.iter().map(|s| [s.x, s.y]));
 
         let n = self.measured.len() as f64;
@@ -391,6 +403,31 @@ impl Estimator {
             out.push(k);
         }
         out
+    }
+}
+
+/// Noise levels above the clean-air baseline below which readings tie.
+const CLEAN_AIR_NOISES: f64 = 3.0;
+
+/// Sets every reading within [`CLEAN_AIR_NOISES`] noise levels of the clean-air baseline to the baseline, so
+/// that readings of clean air form one tie group, as the plume model's values below the
+/// detection floor do. Calibration-free: the baseline is the 5th percentile of the readings,
+/// and the noise level is estimated from successive differences,
+/// `1.4826 median |d_i - d_(i-1)| / sqrt 2` (white noise dominates them at 10 Hz, the plume and
+/// the sensor being slower).
+pub fn clean_air_ties(values: &mut [f64]) {
+    if values.len() < 3 {
+        return;
+    }
+    let diffs: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    let noise = 1.4826 * crate::ste::experiment::median(&diffs) / std::f64::consts::SQRT_2;
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let baseline = sorted[(0.05 * (sorted.len() - 1) as f64).round() as usize];
+    for v in values.iter_mut() {
+        if *v <= baseline + CLEAN_AIR_NOISES * noise {
+            *v = baseline;
+        }
     }
 }
 
