@@ -32,6 +32,7 @@ use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::sampler::FieldSampler;
+use crate::ste::sensor::{MoxParams, SensorPreset};
 
 /// One reading at a position.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -102,12 +103,14 @@ pub struct SteParams {
 impl SteParams {
     /// The defaults for a feature.
     pub fn for_feature(feature: Feature) -> Self {
+        // The source strength and the time constants are the sensor type's, not a calibration.
+        let sensor = MoxParams::for_preset(SensorPreset::SensorII);
         Self {
             feature,
             features: FeatureParams::default(),
             sigmas: Sigmas::default_for(feature),
-            ppm_per_unit: 100.0,
-            sensor_lag_s: Some([2.04, 4.57]),
+            ppm_per_unit: sensor.ppm_per_unit,
+            sensor_lag_s: Some([sensor.tau_res_s, sensor.tau_rec_s]),
             detection_floor_ppm: 1.0,
             clean_air_ties: false,
         }
