@@ -44,8 +44,9 @@ pub struct PlumeArgs {
 }
 
 impl PlumeArgs {
-    /// Loads the layout's world (wind + bank) for the chosen model.
-    pub fn world(&self, layout: Layout) -> Result<World> {
+    /// Loads the layout's world (wind + bank) for the chosen model; also returns the model's
+    /// name for reports.
+    pub fn world(&self, layout: Layout) -> Result<(World, String)> {
         let model: Box<dyn PlumeModel> = if self.solver {
             Box::new(PhysicsSolver)
         } else {
@@ -64,16 +65,7 @@ impl PlumeArgs {
             world.sampler.len(),
             if hit { " (bank from cache)" } else { "" }
         );
-        Ok(world)
-    }
-
-    /// The plume model's name for reports.
-    pub fn name(&self) -> String {
-        if self.solver {
-            "solver".into()
-        } else {
-            format!("plumenet:{}", self.model.display())
-        }
+        Ok((world, model.name()))
     }
 
     /// The candidate spacing (m).
@@ -270,7 +262,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     let source = [a.source.0, a.source.1];
     layout.check_source(source[0], source[1])?;
-    let world = a.plume.world(layout)?;
+    let (world, model_name) = a.plume.world(layout)?;
     let feature = Feature::from(a.feature);
     let config = a.run.config(a.features.params(feature), a.sensor.into());
     let start = match a.start {
@@ -284,7 +276,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         "{} / {} / {}: estimate ({:.2}, {:.2}), error {:.2} m, {} iterations, {}, {} samples, {:.1} s",
         feature.name(),
         config.sensor.name(),
-        a.plume.name(),
+        model_name,
         episode.estimate[0],
         episode.estimate[1],
         episode.error_m,
@@ -309,7 +301,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     }
     if let Some(path) = &a.json {
         let mut value = serde_json::to_value(&episode)?;
-        value["model"] = json!(a.plume.name());
+        value["model"] = json!(model_name);
         value["sigmas"] = json!(config.ste.sigmas);
         value["candidates"] = json!(world.sampler.candidates());
         io::write_json(path, &value)?;
@@ -347,7 +339,7 @@ pub struct ReplayArgs {
 pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     let samples = read_log(&a.log)?;
-    let world = a.plume.world(layout)?;
+    let (world, model_name) = a.plume.world(layout)?;
     let feature = Feature::from(a.feature);
     let params = a.features.params(feature);
     let est = replay(Arc::clone(&world.sampler), params, a.robot_radius, &samples)?;
@@ -393,7 +385,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             .collect();
         let report = json!({
             "estimate": estimate, "entropy": est.entropy(), "samples": samples.len(),
-            "feature": feature.name(), "sigmas": params.sigmas, "model": a.plume.name(),
+            "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
             "posterior": posterior,
         });
         io::write_json(path, &report)?;
@@ -432,7 +424,7 @@ pub struct ExperimentArgs {
 
 pub fn experiment(a: ExperimentArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
-    let world = a.plume.world(layout)?;
+    let (world, _) = a.plume.world(layout)?;
     let features: Vec<Feature> = a.features.iter().map(|&f| f.into()).collect();
     let sensors: Vec<SensorPreset> = a.sensors.iter().map(|&s| s.into()).collect();
     let plan = plan_runs(&features, &sensors, a.runs);
