@@ -49,9 +49,11 @@ impl BankTimings {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// Median of timings: the upper middle for an even count (a timing that was measured), `NaN`
+/// when there are none.
+pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 fn timed<T>(f: impl FnOnce() -> Result<T>) -> Result<(T, f64)> {

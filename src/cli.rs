@@ -20,6 +20,7 @@ use plumenet::surrogate::eval::evaluate;
 use plumenet::surrogate::{Surrogate, TrainEvent, TrainingConfig, TrainingData};
 use plumenet::{bench, io};
 
+mod bench_net;
 mod ste;
 
 /// Calibration-free gas source localisation: dispersion simulator, datasets and plume banks.
@@ -56,6 +57,8 @@ enum Command {
     Experiment(ste::ExperimentArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
     BenchSte(ste::BenchSteArgs),
+    /// PlumeNet's bank and training throughput, side by side with the same network in PyTorch.
+    BenchNet(bench_net::BenchNetArgs),
 }
 
 #[derive(Debug, Args)]
@@ -277,6 +280,7 @@ impl Cli {
             Command::Replay(a) => ste::replay_log(a),
             Command::Experiment(a) => ste::experiment(a),
             Command::BenchSte(a) => ste::bench_ste(a),
+            Command::BenchNet(a) => bench_net::bench_net(a),
         }
     }
 }

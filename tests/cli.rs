@@ -206,6 +206,8 @@ fn every_command_has_help() {
         "localize",
         "replay",
         "experiment",
+        "bench-ste",
+        "bench-net",
     ] {
         let out = plumenet(&[cmd, "--help"]);
         assert!(out.status.success());
@@ -260,6 +262,43 @@ fn shipped_model_predicts_and_banks_the_paper_arena() {
         tmp.path().join("b.npy").to_str().unwrap(),
     ]);
     assert_clean_failure(&out, "was trained for a [32, 144] grid");
+}
+
+#[test]
+fn bench_net_reports_throughput_and_flop_rate() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("bench.json");
+    let out = plumenet(&[
+        "bench-net",
+        "--spacing",
+        "2",
+        "--rounds",
+        "1",
+        "--batch",
+        "2",
+        "--steps",
+        "1",
+        "--no-reference",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("GFLOP/s"), "{stdout}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for key in ["burn_bank_images_per_s", "burn_train_images_per_s"] {
+        let rates = report[key].as_array().unwrap();
+        assert_eq!(rates.len(), 1);
+        assert!(rates[0].as_f64().unwrap() > 0.0, "{key}: {rates:?}");
+    }
+    // The shipped network on the paper's grid: 150 M multiply-adds per image.
+    let macs = report["forward_macs"].as_f64().unwrap();
+    assert!((1.4e8..1.6e8).contains(&macs), "{macs}");
 }
 
 #[test]

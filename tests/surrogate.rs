@@ -1,12 +1,15 @@
 //! PlumeNet: training reduces the loss, resumption is exact, save/load is bit-identical, bad
-//! models are clear errors, and both plume models give the same bank layout.
+//! models are clear errors, both plume models give the same bank layout, and the export for the
+//! PyTorch benchmark holds the bank and every weight.
 
 use std::path::Path;
 
+use ndarray::{Array4, ArrayD};
 use plumenet::Error;
 use plumenet::dataset::{self, GenerateConfig, GenerateParams};
 use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
+use plumenet::surrogate::bench::{export_reference, forward_macs, time_bank, time_training};
 use plumenet::surrogate::inference::weights_bytes;
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainingConfig, TrainingData, train};
 
@@ -169,4 +172,67 @@ fn both_plume_models_give_the_same_bank_layout() {
             }
         }
     }
+}
+
+#[test]
+fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up() {
+    let _turn = one_at_a_time();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let dir = tmp.path().join("model");
+    let config = tiny_config(1);
+    train(&data, &config, &dir, &mut |_| ()).unwrap();
+    let model = Surrogate::load(&dir).unwrap();
+    let layout = Layout::from_json(BLOCKED).unwrap();
+    let candidates = &layout.candidates(0.5).unwrap()[..5];
+    let out = tmp.path().join("export");
+    let tensors = export_reference(&model, &layout, candidates, &out).unwrap();
+    // Weight and bias of 2 encoder convolutions, 1 transposed convolution, 1 decoder
+    // convolution and the head.
+    assert_eq!(tensors, 10);
+
+    // Burn's raw outputs, transformed back, are the bank.
+    let raw: Array4<f32> = plumenet::io::read_npy(&out.join("outputs.npy")).unwrap();
+    let inputs: Array4<f32> = plumenet::io::read_npy(&out.join("inputs.npy")).unwrap();
+    assert_eq!(inputs.dim(), (5, 3, 16, 72));
+    let bank = model.predict_many(&layout, candidates).unwrap();
+    let norm = model.saved().normalization;
+    for ((n, _, j, i), &v) in raw.indexed_iter() {
+        let expected = if layout.is_solid(j, i) {
+            0.0
+        } else {
+            norm.inverse(v)
+        };
+        assert_eq!(bank[[n, j, i]].to_bits(), expected.to_bits());
+    }
+
+    // Brute force: every convolution weight times the pixels of the level it writes.
+    let levels = config.model.filters.len();
+    let mut macs = 0u64;
+    for entry in std::fs::read_dir(out.join("weights")).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_stem().unwrap().to_str().unwrap().to_string();
+        if !name.ends_with(".weight") {
+            continue;
+        }
+        let w: ArrayD<f32> = plumenet::io::read_npy(&path).unwrap();
+        let index = |k: usize| name.split('.').nth(k).unwrap().parse::<usize>().unwrap();
+        let level = match name.split('.').next().unwrap() {
+            "encoders" => index(1),
+            "decoders" | "ups" => levels - 2 - index(1),
+            _ => 0,
+        };
+        let pixels = ((16 >> level) * (72 >> level)) as u64;
+        // A 2x2 stride-2 transposed convolution touches each output pixel with one tap.
+        let taps = if name.starts_with("ups") { 4 } else { 1 };
+        macs += w.len() as u64 * pixels / taps;
+    }
+    assert_eq!(macs, forward_macs(&config.model, [16, 72]));
+
+    assert!(time_bank(&model, &layout, candidates).unwrap() > 0.0);
+    assert!(time_training(&model, &layout, candidates, 2, 1).unwrap() > 0.0);
+    assert!(matches!(
+        time_training(&model, &layout, candidates, 6, 1),
+        Err(Error::Parameter(_))
+    ));
 }

@@ -200,51 +200,81 @@ impl Surrogate {
         Ok(())
     }
 
+    /// The network inputs for `sources` in `layout`, `[N, INPUT_CHANNELS, H, W]` row-major,
+    /// computed in chunks of [`BANK_CHUNK`] (what [`Surrogate::predict_many`] feeds the network).
+    ///
+    /// # Errors
+    /// [`Error::Model`] for another grid, [`Error::Source`] for a source outside free space.
+    pub fn inputs(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Vec<Vec<f32>>> {
+        self.check_layout(layout)?;
+        for &[x, y] in sources {
+            layout.check_source(x, y)?;
+        }
+        let plane = layout.nx() * layout.ny();
+        let (mask, sdf) = layout_planes(layout);
+        Ok(sources
+            .chunks(BANK_CHUNK)
+            .map(|chunk| {
+                let mut input = vec![0.0f32; chunk.len() * INPUT_CHANNELS * plane];
+                for (slot, &src) in input.chunks_mut(INPUT_CHANNELS * plane).zip(chunk) {
+                    encode_input(
+                        mask.view(),
+                        sdf.view(),
+                        src,
+                        layout.cell(),
+                        self.saved.encoding,
+                        &self.saved.normalization,
+                        slot,
+                    );
+                }
+                input
+            })
+            .collect())
+    }
+
+    /// The raw network output (transformed concentration) `[n, 1, H, W]` of `n` encoded inputs.
+    ///
+    /// # Errors
+    /// [`Error::Model`] when `input` does not hold whole samples of this grid.
+    pub fn forward_raw(&self, input: Vec<f32>) -> Result<Vec<f32>> {
+        let [h, w] = self.saved.grid;
+        let per_sample = INPUT_CHANNELS * h * w;
+        if input.is_empty() || input.len() % per_sample != 0 {
+            return Err(Error::Model(format!(
+                "{} input values are not whole samples of {per_sample}",
+                input.len()
+            )));
+        }
+        let n = input.len() / per_sample;
+        let x = Tensor::<4>::from_data(
+            TensorData::new(input, [n, INPUT_CHANNELS, h, w]),
+            &self.device,
+        );
+        self.net
+            .forward(x)
+            .into_data()
+            .try_to_vec::<f32>()
+            .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))
+    }
+
     /// Predicted fields `[N, H, W]` for sources in `layout`, in forward passes of
     /// [`BANK_CHUNK`] samples.
     ///
     /// # Errors
     /// [`Error::Model`] for another grid, [`Error::Source`] for a source outside free space.
     pub fn predict_many(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Array3<f32>> {
-        self.check_layout(layout)?;
-        for &[x, y] in sources {
-            layout.check_source(x, y)?;
-        }
         let (h, w) = layout.shape();
-        let plane = h * w;
-        let (mask, sdf) = layout_planes(layout);
+        let solid = layout.solid();
         let norm = self.saved.normalization;
         let mut out = Array3::<f32>::zeros((sources.len(), h, w));
-        for (c, chunk) in sources.chunks(BANK_CHUNK).enumerate() {
-            let mut input = vec![0.0f32; chunk.len() * INPUT_CHANNELS * plane];
-            for (n, &src) in chunk.iter().enumerate() {
-                let slot = &mut input[n * INPUT_CHANNELS * plane..(n + 1) * INPUT_CHANNELS * plane];
-                encode_input(
-                    mask.view(),
-                    sdf.view(),
-                    src,
-                    layout.cell(),
-                    self.saved.encoding,
-                    &norm,
-                    slot,
-                );
-            }
-            let x = Tensor::<4>::from_data(
-                TensorData::new(input, [chunk.len(), INPUT_CHANNELS, h, w]),
-                &self.device,
-            );
-            let y = self.net.forward(x).into_data();
-            let values = y
-                .try_to_vec::<f32>()
-                .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))?;
-            for (k, v) in values.into_iter().enumerate() {
-                let (n, rest) = (k / plane, k % plane);
-                let (j, i) = (rest / w, rest % w);
-                out[[c * BANK_CHUNK + n, j, i]] = if mask[[j, i]] > 0.5 {
-                    0.0
-                } else {
-                    norm.inverse(v)
-                };
+        let chunks = self.inputs(layout, sources)?;
+        for (input, mut fields) in chunks
+            .into_iter()
+            .zip(out.axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK))
+        {
+            let values = self.forward_raw(input)?;
+            for (((_, j, i), slot), v) in fields.indexed_iter_mut().zip(values) {
+                *slot = if solid[[j, i]] { 0.0 } else { norm.inverse(v) };
             }
         }
         Ok(out)

@@ -1,9 +1,10 @@
 //! PlumeNet, the data-driven plume model (DDPM in the paper: a CNN, not a diffusion model):
 //! architecture ([`model`]), input encoding and batches ([`data`]), training ([`training`]) and
-//! loading, prediction and banks ([`inference`]). Tensors meet ndarray only in [`data`] and
+//! loading, prediction and banks ([`inference`]), and throughput against PyTorch ([`bench`]). Tensors meet ndarray only in [`data`] and
 //! [`inference`].
 
 pub mod backend;
+pub mod bench;
 pub mod data;
 pub mod eval;
 pub mod inference;

@@ -145,7 +145,7 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
 }
 
 /// Mean of the squared error over free cells.
-fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) -> Tensor<1> {
+pub(crate) fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) -> Tensor<1> {
     let count = free.clone().sum();
     (pred - target).powi_scalar(2).mul(free).sum().div(count)
 }

@@ -1,0 +1,232 @@
+//! Throughput of PlumeNet, and the export that lets `scripts/torch_unet_bench.py` run the
+//! identical network in PyTorch side by side (`plumenet bench-net`).
+//!
+//! [`export_reference`] writes the bank inputs, Burn's raw outputs, the obstacle mask and every
+//! weight tensor (one `.npy` per parameter, named by its module path, which is also its PyTorch
+//! `state_dict` key), so the reference loads the same weights and checks that it computes the
+//! same fields before it is timed. [`forward_macs`] counts the multiply-adds of one forward pass
+//! analytically, and [`cpu_peak`] estimates the machine's peak single-precision rate, so the
+//! throughputs can be printed as a fraction of the peak.
+
+use std::path::Path;
+use std::time::Instant;
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::prelude::*;
+use ndarray::{ArrayD, IxDyn};
+
+use super::data::INPUT_CHANNELS;
+use super::inference::Surrogate;
+use super::model::PlumeNetConfig;
+use super::training::masked_mse;
+use crate::error::{Error, Result};
+use crate::io;
+use crate::layout::Layout;
+
+/// Multiply-adds of one forward pass of `config` on an `[h, w]` grid (convolutions, transposed
+/// convolutions and the 1x1 head; pooling, ReLU and concatenation are not counted).
+pub fn forward_macs(config: &PlumeNetConfig, [h, w]: [usize; 2]) -> u64 {
+    let f = &config.filters;
+    let k2 = (config.kernel_size * config.kernel_size) as u64;
+    let pixels = |level: usize| ((h >> level) * (w >> level)) as u64;
+    let block = |level: usize, cin: usize, cout: usize| {
+        let first = cin as u64 * cout as u64;
+        let rest = (config.convs_per_level as u64 - 1) * (cout * cout) as u64;
+        pixels(level) * k2 * (first + rest)
+    };
+    let mut macs = 0;
+    for (l, &c) in f.iter().enumerate() {
+        macs += block(l, if l == 0 { config.in_channels } else { f[l - 1] }, c);
+    }
+    for l in 0..f.len() - 1 {
+        // A 2x2 stride-2 transposed convolution: each output pixel sees one input pixel.
+        macs += pixels(l) * (f[l + 1] * f[l]) as u64;
+        macs += block(l, 2 * f[l], f[l]);
+    }
+    macs + pixels(0) * f[0] as u64
+}
+
+/// Collects every float parameter with its dotted module path.
+#[derive(Default)]
+struct Collect {
+    path: Vec<String>,
+    tensors: Vec<(String, ArrayD<f32>)>,
+    error: Option<String>,
+}
+
+impl ModuleVisitor for Collect {
+    fn enter_module(&mut self, name: &str, _container_type: &str) {
+        self.path.push(name.to_string());
+    }
+
+    fn exit_module(&mut self, _name: &str, _container_type: &str) {
+        self.path.pop();
+    }
+
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let tensor = param.val();
+        let shape = tensor.dims().to_vec();
+        match tensor.into_data().try_to_vec::<f32>() {
+            Ok(values) => match ArrayD::from_shape_vec(IxDyn(&shape), values) {
+                Ok(array) => self.tensors.push((self.path.join("."), array)),
+                Err(e) => self.error = Some(e.to_string()),
+            },
+            Err(e) => self.error = Some(format!("{e:?}")),
+        }
+    }
+}
+
+/// Writes, into `dir`: `inputs.npy` `[N, C, H, W]` (the bank's network inputs), `outputs.npy`
+/// `[N, 1, H, W]` (Burn's raw outputs), `solid.npy` `[H, W]` (1 in obstacles), and
+/// `weights/<path>.npy` for every parameter. Returns the number of weight tensors.
+///
+/// # Errors
+/// [`Error::Model`] or [`Error::Source`] as for a bank, [`Error::Io`] when `dir` is not writable.
+pub fn export_reference(
+    model: &Surrogate,
+    layout: &Layout,
+    sources: &[[f64; 2]],
+    dir: &Path,
+) -> Result<usize> {
+    let [h, w] = model.saved().grid;
+    let n = sources.len();
+    let chunks = model.inputs(layout, sources)?;
+    let mut outputs = Vec::with_capacity(n * h * w);
+    for chunk in &chunks {
+        outputs.extend(model.forward_raw(chunk.clone())?);
+    }
+    let inputs: Vec<f32> = chunks.concat();
+    let shaped = |values: Vec<f32>, shape: &[usize]| {
+        ArrayD::from_shape_vec(IxDyn(shape), values).map_err(|e| Error::Model(e.to_string()))
+    };
+    io::create_dir_all(&dir.join("weights"))?;
+    io::write_npy(
+        &dir.join("inputs.npy"),
+        &shaped(inputs, &[n, INPUT_CHANNELS, h, w])?,
+    )?;
+    io::write_npy(&dir.join("outputs.npy"), &shaped(outputs, &[n, 1, h, w])?)?;
+    io::write_npy(
+        &dir.join("solid.npy"),
+        &layout.solid().mapv(|s| f32::from(u8::from(s))),
+    )?;
+    let mut collect = Collect::default();
+    model.net().visit(&mut collect);
+    if let Some(e) = collect.error {
+        return Err(Error::Model(format!("cannot read a weight tensor: {e}")));
+    }
+    for (name, array) in &collect.tensors {
+        io::write_npy(&dir.join("weights").join(format!("{name}.npy")), array)?;
+    }
+    Ok(collect.tensors.len())
+}
+
+/// Seconds for the whole bank of `sources` in `layout` (input encoding, batched forward passes
+/// and the inverse transform: what the STE waits for).
+///
+/// # Errors
+/// As [`Surrogate::predict_many`].
+pub fn time_bank(model: &Surrogate, layout: &Layout, sources: &[[f64; 2]]) -> Result<f64> {
+    let start = Instant::now();
+    let bank = model.predict_many(layout, sources)?;
+    let seconds = start.elapsed().as_secs_f64();
+    std::hint::black_box(bank);
+    Ok(seconds)
+}
+
+/// Seconds per training step (forward, masked MSE, backward, AdamW update with the training
+/// defaults) of a fresh network of `model`'s architecture, on batches of `batch` of the bank
+/// inputs with `model`'s own outputs as targets, after two warm-up steps.
+///
+/// # Errors
+/// [`Error::Parameter`] for a zero batch or step count, [`Error::Model`] as for a bank.
+pub fn time_training(
+    model: &Surrogate,
+    layout: &Layout,
+    sources: &[[f64; 2]],
+    batch: usize,
+    steps: usize,
+) -> Result<f64> {
+    if batch == 0 || steps == 0 || sources.len() < batch {
+        return Err(Error::Parameter(format!(
+            "training timing needs a batch and steps of at least 1 and {batch} sources"
+        )));
+    }
+    let [h, w] = model.saved().grid;
+    let device = super::backend::device().autodiff();
+    let input = model.inputs(layout, &sources[..batch])?.concat();
+    let target = model.forward_raw(input.clone())?;
+    let free: Vec<f32> = layout
+        .solid()
+        .iter()
+        .map(|&s| f32::from(u8::from(!s)))
+        .collect::<Vec<_>>()
+        .repeat(batch);
+    let tensor = |values: Vec<f32>, channels: usize| {
+        Tensor::<4>::from_data(TensorData::new(values, [batch, channels, h, w]), &device)
+    };
+    let (x, y, free) = (
+        tensor(input, INPUT_CHANNELS),
+        tensor(target, 1),
+        tensor(free, 1),
+    );
+    let mut net = model.saved().architecture.init_seeded(&device, 0);
+    let mut optim = AdamWConfig::new().with_weight_decay(0.005).init();
+    let mut start = Instant::now();
+    for step in 0..steps + 2 {
+        if step == 2 {
+            start = Instant::now();
+        }
+        let loss = masked_mse(net.forward(x.clone()), y.clone(), free.clone());
+        std::hint::black_box(loss.clone().into_scalar::<f32>());
+        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        net = optim.step(1e-3, net, grads);
+    }
+    Ok(start.elapsed().as_secs_f64() / steps as f64)
+}
+
+/// An estimate of the machine's peak single-precision rate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CpuPeak {
+    /// Cores available to this process.
+    pub cores: usize,
+    /// Clock (MHz) as `/proc/cpuinfo` reports it.
+    pub mhz: f64,
+    /// Floating-point operations per cycle and core assumed from the vector extensions: two
+    /// fused multiply-add units of 16 (AVX-512) or 8 (AVX2) lanes, or 4 otherwise.
+    pub flops_per_cycle: f64,
+}
+
+impl CpuPeak {
+    /// Peak rate in GFLOP/s.
+    pub fn gflops(&self) -> f64 {
+        self.cores as f64 * self.mhz * self.flops_per_cycle / 1e3
+    }
+}
+
+/// The peak estimate of this machine, or `None` where `/proc/cpuinfo` gives no clock.
+pub fn cpu_peak() -> Option<CpuPeak> {
+    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let mhz = info
+        .lines()
+        .find(|l| l.starts_with("cpu MHz"))?
+        .split(':')
+        .nth(1)?
+        .trim()
+        .parse::<f64>()
+        .ok()?;
+    let flags = info.lines().find(|l| l.starts_with("flags")).unwrap_or("");
+    let has = |f: &str| flags.split_whitespace().any(|x| x == f);
+    let lanes = if has("avx512f") {
+        16.0
+    } else if has("avx2") && has("fma") {
+        8.0
+    } else {
+        2.0
+    };
+    Some(CpuPeak {
+        cores: std::thread::available_parallelism().map_or(1, usize::from),
+        mhz,
+        flops_per_cycle: 2.0 * 2.0 * lanes,
+    })
+}
