@@ -10,8 +10,9 @@ JSON object):
 - `check`: loads the weights (every key and shape must match) and reports the largest
   difference between this network's bank and Burn's.
 - `bank`: times the whole bank in forward passes of `--chunk` samples (as plumenet does).
-- `train`: times training steps (forward, masked MSE, backward, AdamW with lr 1e-3 and weight
-  decay 0.005) on a batch of `--batch` inputs, after two warm-up steps.
+- `train`: times training steps (forward, masked MSE, backward, AdamW with `--lr` and
+  `--weight-decay`, which plumenet passes from its training defaults) on a batch of `--batch`
+  inputs, after two warm-up steps.
 
 Installs torch and numpy with pip when they are missing (only this benchmark needs Python).
 Uses every core (`torch.set_num_threads(os.cpu_count())`).
@@ -117,6 +118,8 @@ def main():
     parser.add_argument("--chunk", type=int, default=64)
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--weight-decay", type=float, default=0.005)
     args = parser.parse_args()
     torch.set_num_threads(os.cpu_count())
     net, inputs, outputs, free = load(args.dir)
@@ -134,7 +137,7 @@ def main():
         net.train()
         x, y = inputs[: args.batch].clone(), outputs[: args.batch].clone()
         mask = free.expand_as(y).contiguous()
-        optim = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=0.005)
+        optim = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=args.weight_decay)
         for step in range(args.steps + 2):
             if step == 2:
                 start = time.perf_counter()

@@ -11,10 +11,10 @@ use serde_json::{Value, json};
 use plumenet::bench::median;
 use plumenet::io;
 use plumenet::layout::Layout;
-use plumenet::surrogate::Surrogate;
 use plumenet::surrogate::bench::{
     cpu_peak, export_reference, forward_macs, time_bank, time_training,
 };
+use plumenet::surrogate::{Surrogate, TrainingConfig};
 
 /// Flags of `bench-net`.
 #[derive(Debug, Args)]
@@ -71,19 +71,11 @@ fn reference(python: &Path, dir: &Path, args: &[&str]) -> Result<Value> {
     serde_json::from_slice(&output.stdout).context("the PyTorch reference printed no JSON")
 }
 
-/// One side's medians: images per second for the bank and for training.
+/// One side's rates, one per round: images per second for the bank and for training.
+#[derive(Default)]
 struct Side {
     bank: Vec<f64>,
     train: Vec<f64>,
-}
-
-impl Side {
-    fn new() -> Self {
-        Self {
-            bank: Vec::new(),
-            train: Vec::new(),
-        }
-    }
 }
 
 /// Runs `bench-net`.
@@ -119,8 +111,13 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             identity["max_abs_output"].as_f64().unwrap_or(f64::NAN),
         );
     }
-    let (mut burn, mut torch) = (Side::new(), Side::new());
+    let (mut burn, mut torch) = (Side::default(), Side::default());
     let (batch, steps) = (a.batch.to_string(), a.steps.to_string());
+    let defaults = TrainingConfig::default();
+    let (lr, weight_decay) = (
+        defaults.learning_rate.to_string(),
+        defaults.weight_decay.to_string(),
+    );
     for round in 1..=a.rounds {
         burn.bank
             .push(n as f64 / time_bank(&model, &layout, &candidates)?);
@@ -139,7 +136,18 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             let r = reference(
                 &a.python,
                 &dir,
-                &["--mode", "train", "--batch", &batch, "--steps", &steps],
+                &[
+                    "--mode",
+                    "train",
+                    "--batch",
+                    &batch,
+                    "--steps",
+                    &steps,
+                    "--lr",
+                    &lr,
+                    "--weight-decay",
+                    &weight_decay,
+                ],
             )?;
             torch
                 .train
@@ -179,32 +187,25 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         );
         report["peak_gflops"] = json!(p.gflops());
     }
-    for (what, burn_rate, torch_rate, passes) in [
-        ("bank", median(burn.bank), median(torch.bank.clone()), 1.0),
-        (
-            "training",
-            median(burn.train),
-            median(torch.train.clone()),
-            3.0,
-        ),
+    for (what, burn_rates, torch_rates, passes) in [
+        ("bank", &burn.bank, &torch.bank, 1.0),
+        ("training", &burn.train, &torch.train, 3.0),
     ] {
+        let burn_rate = median(burn_rates.clone());
         let g = gflops(burn_rate, passes);
         let mut line = format!(
             "{what:8}: burn {burn_rate:7.1} img/s ({g:.1} GFLOP/s{})",
             of_peak(g)
         );
         if !a.no_reference {
+            let torch_rate = median(torch_rates.clone());
             let t = gflops(torch_rate, passes);
             line += &format!(
                 ", torch {torch_rate:7.1} img/s ({t:.1} GFLOP/s{}); burn / torch = {:.2}x",
                 of_peak(t),
                 burn_rate / torch_rate
             );
-            report[format!("torch_{what}_images_per_s")] = json!(if what == "bank" {
-                &torch.bank
-            } else {
-                &torch.train
-            });
+            report[format!("torch_{what}_images_per_s")] = json!(torch_rates);
             report[format!("ratio_{what}")] = json!(burn_rate / torch_rate);
         }
         println!("{line}");

@@ -19,7 +19,7 @@ use ndarray::{ArrayD, IxDyn};
 use super::data::INPUT_CHANNELS;
 use super::inference::Surrogate;
 use super::model::PlumeNetConfig;
-use super::training::masked_mse;
+use super::training::{TrainingConfig, masked_mse};
 use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::Layout;
@@ -134,8 +134,8 @@ pub fn time_bank(model: &Surrogate, layout: &Layout, sources: &[[f64; 2]]) -> Re
     Ok(seconds)
 }
 
-/// Seconds per training step (forward, masked MSE, backward, AdamW update with the training
-/// defaults) of a fresh network of `model`'s architecture, on batches of `batch` of the bank
+/// Seconds per training step (forward, masked MSE, backward, AdamW update with the learning
+/// rate and weight decay of [`TrainingConfig::default`]) of a fresh network of `model`'s architecture, on batches of `batch` of the bank
 /// inputs with `model`'s own outputs as targets, after two warm-up steps.
 ///
 /// # Errors
@@ -171,7 +171,10 @@ pub fn time_training(
         tensor(free, 1),
     );
     let mut net = model.saved().architecture.init_seeded(&device, 0);
-    let mut optim = AdamWConfig::new().with_weight_decay(0.005).init();
+    let defaults = TrainingConfig::default();
+    let mut optim = AdamWConfig::new()
+        .with_weight_decay(defaults.weight_decay)
+        .init();
     let mut start = Instant::now();
     for step in 0..steps + 2 {
         if step == 2 {
@@ -180,7 +183,7 @@ pub fn time_training(
         let loss = masked_mse(net.forward(x.clone()), y.clone(), free.clone());
         std::hint::black_box(loss.clone().into_scalar::<f32>());
         let grads = GradientsParams::from_grads(loss.backward(), &net);
-        net = optim.step(1e-3, net, grads);
+        net = optim.step(defaults.learning_rate, net, grads);
     }
     Ok(start.elapsed().as_secs_f64() / steps as f64)
 }

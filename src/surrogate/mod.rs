@@ -1,7 +1,7 @@
 //! PlumeNet, the data-driven plume model (DDPM in the paper: a CNN, not a diffusion model):
-//! architecture ([`model`]), input encoding and batches ([`data`]), training ([`training`]) and
-//! loading, prediction and banks ([`inference`]), and throughput against PyTorch ([`bench`]). Tensors meet ndarray only in [`data`] and
-//! [`inference`].
+//! architecture ([`model`]), input encoding and batches ([`data`]), training ([`training`]),
+//! loading, prediction and banks ([`inference`]), and throughput against PyTorch ([`bench`]).
+//! Tensors meet ndarray only in [`data`], [`inference`] and [`bench`].
 
 pub mod backend;
 pub mod bench;
