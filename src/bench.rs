@@ -21,7 +21,7 @@ use crate::physics::transport::Transport;
 use crate::physics::wind::WindField;
 use crate::ste::posterior::prior_support;
 use crate::ste::run::PRIOR_BAND_M;
-use crate::ste::{Estimator, Feature, Sample, SteParams, World};
+use crate::ste::{Estimator, Sample, SteParams, World};
 
 /// Median timings (seconds) of the physics bank on one layout.
 #[derive(Debug, Clone, PartialEq)]
@@ -144,8 +144,8 @@ pub fn export_system(transport: &Transport, candidates: &[[f64; 2]], dir: &Path)
 /// Median timings (seconds) of one STE update on one core.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SteTimings {
-    /// The feature timed.
-    pub feature: Feature,
+    /// The estimator settings timed (feature, rank additions).
+    pub params: SteParams,
     /// One update: `batch` new readings on top of the others, posterior recomputed.
     pub update_s: f64,
     /// Reading an `N x n` estimate matrix once (a squared difference per entry): the floor.
@@ -165,7 +165,7 @@ pub struct SteTimings {
 /// [`crate::Error::Parameter`] for `batch` not below `total`, and the estimator's errors.
 pub fn time_ste_update(
     world: &World,
-    feature: Feature,
+    params: SteParams,
     total: usize,
     batch: usize,
     repeats: usize,
@@ -197,11 +197,7 @@ pub fn time_ste_update(
         }
     }
     let support = prior_support(layout, world.sampler.candidates(), 0.07, PRIOR_BAND_M)?;
-    let mut est = Estimator::new(
-        world.sampler.clone(),
-        &support,
-        SteParams::for_feature(feature),
-    )?;
+    let mut est = Estimator::new(world.sampler.clone(), &support, params)?;
     let first = total - batch * repeats;
     est.update(&samples[..first])?;
     let n_cand = world.sampler.len();
@@ -231,7 +227,7 @@ pub fn time_ste_update(
             floor.push(s);
         }
         Ok(SteTimings {
-            feature,
+            params,
             update_s: median(update),
             floor_s: median(floor),
             candidates: n_cand,

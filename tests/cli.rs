@@ -461,4 +461,14 @@ fn bad_ste_input_fails_cleanly() {
         "3,2",
     ]);
     assert_clean_failure(&out, "models/missing");
+    let out = plumenet(&[
+        "localize",
+        "--solver",
+        "--no-cache",
+        "--source",
+        "3,2",
+        "--rank-tolerance",
+        "0.5",
+    ]);
+    assert_clean_failure(&out, "rank tolerance must be a factor of at least 1");
 }

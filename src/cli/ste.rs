@@ -17,7 +17,7 @@ use plumenet::ste::replay::{read_log, replay};
 use plumenet::ste::run::derive_seed;
 use plumenet::ste::{
     EpisodeConfig, Feature, PlannerKind, RobotParams, Sampling, SensorPreset, Sigmas, SteParams,
-    World, run_episode,
+    Termination, World, run_episode,
 };
 use plumenet::surrogate::Surrogate;
 
@@ -93,11 +93,14 @@ pub struct FeatureArgs {
     /// response and recovery dynamics first (the paper's form).
     #[arg(long)]
     no_lag_model: bool,
-    /// Rank only: readings within three noise levels of the clean-air baseline tie (noise and
-    /// baseline estimated from the readings themselves; breaks exact invariance under
-    /// nonlinear transforms).
-    #[arg(long)]
-    clean_air_ties: bool,
+    /// Rank only: the factor within which the plume model's concentrations are trusted; the
+    /// share of estimates within it adds to each rank's model error (1 turns it off).
+    #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
+    rank_tolerance: f64,
+    /// Rank only: the paper's rank likelihood, without our clean-air ties and rank tolerance
+    /// (exactly invariant under every increasing transform of the readings).
+    #[arg(long, conflicts_with = "rank_tolerance")]
+    paper_rank: bool,
 }
 
 impl FeatureArgs {
@@ -118,7 +121,10 @@ impl FeatureArgs {
         if self.no_lag_model {
             p.sensor_lag_s = None;
         }
-        p.clean_air_ties = self.clean_air_ties;
+        p.rank_tolerance = self.rank_tolerance;
+        if self.paper_rank {
+            p = p.papers_rank();
+        }
         p
     }
 }
@@ -191,14 +197,14 @@ pub struct RunArgs {
     #[arg(long)]
     noise_free: bool,
     /// Iteration limit.
-    #[arg(long, default_value_t = 30)]
+    #[arg(long, default_value_t = Termination::default().max_iterations)]
     max_iterations: usize,
     /// Entropy (nats) below which the run may stop (default: the tuned value).
     #[arg(long)]
     entropy_threshold: Option<f64>,
     /// Consecutive concentrated iterations, around the same estimate, needed to stop
     /// (1 = the paper's rule alone).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = Termination::default().stable_iterations)]
     stable_iterations: usize,
 }
 
@@ -503,17 +509,24 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         world.sampler.len()
     );
     let mut report = Vec::new();
-    for feature in Feature::ALL {
-        let t = plumenet::bench::time_ste_update(&world, feature, a.samples, a.batch, a.repeats)?;
+    let variants = Feature::ALL
+        .map(|f| (f.name(), SteParams::for_feature(f)))
+        .into_iter()
+        .chain([(
+            "rank-paper",
+            SteParams::for_feature(Feature::Rank).papers_rank(),
+        )]);
+    for (name, params) in variants {
+        let t = plumenet::bench::time_ste_update(&world, params, a.samples, a.batch, a.repeats)?;
         println!(
             "  {:13} update {:7.2} ms   floor (read N x n once) {:6.2} ms   ratio {:5.1}x",
-            feature.name(),
+            name,
             t.update_s * 1e3,
             t.floor_s * 1e3,
             t.update_s / t.floor_s
         );
         report.push(json!({
-            "feature": feature.name(), "update_ms": t.update_s * 1e3, "floor_ms": t.floor_s * 1e3,
+            "feature": name, "update_ms": t.update_s * 1e3, "floor_ms": t.floor_s * 1e3,
             "candidates": t.candidates, "samples": t.samples,
         }));
     }

@@ -168,6 +168,37 @@ impl<T: Reading> FeatureTrack<T> {
         }
     }
 
+    /// For every value, the share of all values within a factor `ratio >= 1` of it (in
+    /// `[v / ratio, v * ratio]`, itself included; 0 for values `<= 0`): calls `f(i, share)`
+    /// with the value's time index `i`, in the order of the sorted list. This is how far a
+    /// value's rank can move when the value is off by up to that factor, and the estimator uses
+    /// it as the rank's model error (see [`crate::ste::posterior`]). One sweep, `O(n)`.
+    ///
+    /// Rank tracks only: the other features keep no sorted list and call `f` for nothing.
+    pub fn for_each_share(&self, ratio: f64, mut f: impl FnMut(usize, f32)) {
+        debug_assert!(self.feature == Feature::Rank || self.sorted.is_empty());
+        let sorted = &self.sorted;
+        let n = sorted.len();
+        let inv_n = 1.0 / n as f32;
+        let (mut lo, mut hi) = (0, 0);
+        for (p, &(v, idx)) in sorted.iter().enumerate() {
+            let v: f64 = v.into();
+            if v <= 0.0 {
+                f(idx as usize, 0.0);
+                continue;
+            }
+            let (low, high) = (v / ratio, v * ratio);
+            while sorted[lo].0.into() < low {
+                lo += 1;
+            }
+            hi = hi.max(p);
+            while hi + 1 < n && sorted[hi + 1].0.into() <= high {
+                hi += 1;
+            }
+            f(idx as usize, (hi + 1 - lo) as f32 * inv_n);
+        }
+    }
+
     /// Sort the new values, merge them into the sorted list, and assign the ranks in the same
     /// pass: when a group of equal values ends at merged position `k`, each member gets `k / n`.
     fn update_ranks(&mut self, start: usize) {

@@ -18,10 +18,13 @@
 //! exists, so this is what we built from the paper's words): the cells of the 90% credible set
 //! are clustered by probability-weighted k-means (k = 4, k-means++ start, seeded; clusters whose
 //! centroids are within 1 m are merged). Around every cluster centroid the goals are the
-//! centroid itself and points 1 and 2 m downwind, 1 m to either side, and 1 m downwind to either
-//! side, plus 8 random free points for exploration. Each goal gets an A* path; its score is the
-//! expected gain of sensing along the **whole path** divided by the path length (at least 1 m).
-//! The best goal wins; goals closer than 0.5 m are skipped.
+//! centroid itself, points 1 and 2 m upwind and downwind, 1 m to either side, and 1 m downwind
+//! to either side, plus 8 random free points for exploration. (The upwind goals are ours: a
+//! path upwind of a cluster crosses the clean air a true source leaves there, the cheapest way
+//! to refute a cluster that formed far downwind of the real source.) Each goal gets an A*
+//! path; its score is the expected gain of sensing along the **whole path** divided by the path
+//! length plus a fixed cost of 2 m per iteration. The best goal wins; goals closer than 1 m to
+//! the robot are skipped.
 //!
 //! **Baseline** (after the authors' released controller: a blend of information gain and a
 //! marginal-distance goal): goals on a 1 m lattice of free points; score = gain of a single
@@ -72,8 +75,10 @@ const MIN_GOAL_M: f64 = 1.0;
 const ITERATION_COST_M: f64 = 2.0;
 const LATTICE_M: f64 = 1.0;
 const DISTANCE_WEIGHT: f64 = 0.5;
-const GOAL_OFFSETS: [[f64; 2]; 7] = [
+const GOAL_OFFSETS: [[f64; 2]; 9] = [
     [0.0, 0.0],
+    [-1.0, 0.0],
+    [-2.0, 0.0],
     [1.0, 0.0],
     [2.0, 0.0],
     [0.0, 1.0],

@@ -18,6 +18,29 @@
 //!
 //! Estimated values below a detection floor (1 ppm) are then set to zero.
 //!
+//! For the rank feature two further additions of ours are on by default; both use nothing but
+//! the readings themselves and the plume model, so the method stays calibration-free:
+//!
+//! - **Clean-air ties** ([`clean_air_ties`]): readings within three noise levels of the
+//!   clean-air baseline form one tie group, as the model's values below the floor do.
+//! - **Rank tolerance**: the model's concentrations are trusted only up to a factor `r`
+//!   ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above all, the
+//!   intermittency of the real plume, whose readings scatter by such factors around the mean
+//!   field). A value whose rank would move by the share `w_i` of all estimates lying within
+//!   that factor of it ([`FeatureTrack::for_each_share`]) gets the model error `w_i` on top of
+//!   the constant ones, so the likelihood becomes
+//!
+//!   ```text
+//!   ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (e_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i(theta_j)^2)
+//!   ```
+//!
+//!   Where a candidate's plume is flat along the path (a well-mixed region far downwind), its
+//!   predicted ranks are decided by tiny differences the real plume does not keep, and those
+//!   samples count little; where it is steep (near the source, at the plume's edges) and where
+//!   it predicts clean air (`w_i = 0`), they count fully. Without it, a robot that starts far
+//!   downwind and reads the fluctuations of a well-mixed plume can pin the source on a spot near
+//!   itself whose steep predicted gradient happens to fit those fluctuations.
+//!
 //! The sum runs over all `n` readings so far (the posterior is recomputed from the uniform
 //! prior and all data at every update, since rank features change with every new reading). The prior is
 //! uniform over candidates outside the inflated obstacles and the boundary band, zero
@@ -65,7 +88,7 @@ impl Sigmas {
             Feature::Value => (40.0, 40.0),
             Feature::FixedHit => (0.5, 0.5),
             Feature::AdaptiveHit => (0.7, 0.7),
-            Feature::Rank => (0.7, 0.7),
+            Feature::Rank => (0.5, 0.5),
         };
         Self { model, measurement }
     }
@@ -95,9 +118,13 @@ pub struct SteParams {
     /// exponentially small upwind tails (values like 1e-20), which carry no physical meaning.
     pub detection_floor_ppm: f64,
     /// Rank only: treat readings within three noise levels of the clean-air baseline as one
-    /// tie group (see [`clean_air_ties`]). Off by default: it makes the rank posterior depend
-    /// on reading magnitudes, so it is no longer invariant under every increasing transform.
+    /// tie group (see [`clean_air_ties`]). On by default; the rank posterior is then invariant
+    /// under gain and offset of the readings, no longer under every increasing transform.
     pub clean_air_ties: bool,
+    /// Rank only: the factor `r >= 1` within which the plume model's concentrations are
+    /// trusted; the share of estimates within that factor of each estimate is added to its
+    /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
+    pub rank_tolerance: f64,
 }
 
 impl SteParams {
@@ -112,7 +139,18 @@ impl SteParams {
             ppm_per_unit: sensor.ppm_per_unit,
             sensor_lag_s: Some([sensor.tau_res_s, sensor.tau_rec_s]),
             detection_floor_ppm: 1.0,
+            clean_air_ties: true,
+            rank_tolerance: RANK_TOLERANCE,
+        }
+    }
+
+    /// The same settings with the paper's rank likelihood: no clean-air ties, no rank
+    /// tolerance (other features are unaffected).
+    pub fn papers_rank(self) -> Self {
+        Self {
             clean_air_ties: false,
+            rank_tolerance: 1.0,
+            ..self
         }
     }
 
@@ -138,6 +176,12 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "detection floor must be finite and non-negative, got {}",
                 self.detection_floor_ppm
+            )));
+        }
+        if !(self.rank_tolerance.is_finite() && self.rank_tolerance >= 1.0) {
+            return Err(Error::Parameter(format!(
+                "rank tolerance must be a factor of at least 1, got {}",
+                self.rank_tolerance
             )));
         }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
@@ -319,7 +363,10 @@ impl Estimator {
         self.positions.extend(samples.iter().map(|s| [s.x, s.y]));
 
         let n = self.measured.len() as f64;
-        let factor = -0.5 * n / (n + 1.0) / self.params.sigmas.variance();
+        let factor = -0.5 * n / (n + 1.0);
+        let variance = self.params.sigmas.variance();
+        let tolerance = (self.params.feature == Feature::Rank && self.params.rank_tolerance > 1.0)
+            .then_some(self.params.rank_tolerance);
         let m = self.measured.features();
         let p = samples.len();
         let log_lik: Vec<f64> = self
@@ -329,16 +376,24 @@ impl Estimator {
             .map(|(k, track)| {
                 let fresh: Vec<f32> = (0..p).map(|i| gathered[i * n_cand + k]).collect();
                 track.extend(&fresh);
-                let sq: f64 = track
-                    .features()
-                    .iter()
-                    .zip(m)
-                    .map(|(&e, &m)| {
-                        let d = f64::from(e - m);
-                        d * d
-                    })
-                    .sum();
-                factor * sq
+                let e = track.features();
+                let sum = match tolerance {
+                    None => {
+                        e.iter()
+                            .zip(m)
+                            .map(|(&e, &m)| f64::from(e - m).powi(2))
+                            .sum::<f64>()
+                            / variance
+                    }
+                    Some(r) => {
+                        let mut sum = 0.0;
+                        track.for_each_share(r, |i, w| {
+                            sum += f64::from(e[i] - m[i]).powi(2) / (variance + f64::from(w * w));
+                        });
+                        sum
+                    }
+                };
+                factor * sum
             })
             .collect();
         let log_post: Vec<f64> = self
@@ -408,6 +463,9 @@ impl Estimator {
         out
     }
 }
+
+/// The default rank tolerance: model concentrations are trusted within a factor of 3.
+const RANK_TOLERANCE: f64 = 3.0;
 
 /// Noise levels above the clean-air baseline below which readings tie.
 const CLEAN_AIR_NOISES: f64 = 3.0;
@@ -483,7 +541,7 @@ impl Default for Termination {
             mass: 0.9,
             radius_m: 0.75,
             max_iterations: 30,
-            stable_iterations: 1,
+            stable_iterations: 2,
         }
     }
 }
