@@ -430,16 +430,17 @@ fn run_bench(a: BenchArgs) -> Result<()> {
         "candidates": t.candidates, "unknowns": t.unknowns,
     });
     if !a.no_reference {
-        let dir = tempfile_dir()?;
-        bench::export_system(&transport, &candidates, &dir)?;
+        // Removed when dropped, whichever way this block ends.
+        let tmp = export_dir("plumenet-bench-")?;
+        let dir = tmp.path();
+        bench::export_system(&transport, &candidates, dir)?;
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/superlu_bench.py");
         let output = Process::new("python3")
             .arg(&script)
-            .arg(&dir)
+            .arg(dir)
             .args(["--repeats", &a.repeats.to_string()])
             .output()
             .context("cannot run python3 for the SuperLU reference (use --no-reference to skip)")?;
-        let _ = std::fs::remove_dir_all(&dir);
         if !output.status.success() {
             bail!(
                 "SuperLU reference failed: {}",
@@ -476,10 +477,12 @@ fn run_bench(a: BenchArgs) -> Result<()> {
     Ok(())
 }
 
-fn tempfile_dir() -> Result<PathBuf> {
-    let dir = std::env::temp_dir().join(format!("plumenet-bench-{}", std::process::id()));
-    io::create_dir_all(&dir)?;
-    Ok(dir)
+/// A fresh temporary directory for a benchmark's exports (deleted when dropped).
+pub(crate) fn export_dir(prefix: &str) -> Result<tempfile::TempDir> {
+    tempfile::Builder::new()
+        .prefix(prefix)
+        .tempdir()
+        .context("cannot create a temporary directory for the reference exports")
 }
 
 fn train(a: TrainArgs) -> Result<()> {

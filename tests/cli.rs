@@ -192,6 +192,23 @@ fn bad_input_gives_one_clear_error_line_and_no_file() {
     }
 }
 
+/// A failing Python reference ends `bench` with one clear error, and the export folder it made
+/// for the reference is gone (it lives in `TMPDIR`, pointed here at an empty folder).
+#[test]
+fn bench_cleans_up_when_the_reference_fails() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_plumenet"))
+        .args(["bench", "--repeats", "1"])
+        .current_dir(repo_path(""))
+        .env("TMPDIR", tmp.path())
+        .env("PATH", tmp.path())
+        .output()
+        .expect("binary runs");
+    assert_clean_failure(&out, "cannot run python3 for the SuperLU reference");
+    let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+}
+
 #[test]
 fn every_command_has_help() {
     for cmd in [

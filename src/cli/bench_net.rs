@@ -98,11 +98,13 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         a.rounds,
         threads
     );
-    let dir = std::env::temp_dir().join(format!("plumenet-bench-net-{}", std::process::id()));
+    // Removed when dropped, whichever way this command ends.
+    let tmp = super::export_dir("plumenet-bench-net-")?;
+    let dir = tmp.path();
     let mut identity = Value::Null;
     if !a.no_reference {
-        let tensors = export_reference(&model, &layout, &candidates, &dir)?;
-        identity = reference(&a.python, &dir, &["--mode", "check"])?;
+        let tensors = export_reference(&model, &layout, &candidates, dir)?;
+        identity = reference(&a.python, dir, &["--mode", "check"])?;
         println!(
             "PyTorch {} loaded the same {} weight tensors: max |burn - torch| over the bank {:.1e} (outputs up to {:.1})",
             identity["torch"].as_str().unwrap_or("?"),
@@ -129,13 +131,13 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             burn.train[round - 1]
         );
         if !a.no_reference {
-            let r = reference(&a.python, &dir, &["--mode", "bank"])?;
+            let r = reference(&a.python, dir, &["--mode", "bank"])?;
             torch
                 .bank
                 .push(n as f64 / r["seconds"].as_f64().unwrap_or(f64::NAN));
             let r = reference(
                 &a.python,
-                &dir,
+                dir,
                 &[
                     "--mode",
                     "train",
@@ -160,7 +162,6 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         }
         println!("{line}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 
     // A training step is a forward pass and a backward pass; the backward pass computes the
     // gradients of inputs and weights, about twice the forward's work: three passes in all.
