@@ -118,9 +118,12 @@ def main():
     parser.add_argument("--chunk", type=int, default=64)
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--steps", type=int, default=10)
-    parser.add_argument("--lr", type=float, default=1e-3)
-    parser.add_argument("--weight-decay", type=float, default=0.005)
+    # No defaults: plumenet passes its own training defaults, the one place they are defined.
+    parser.add_argument("--lr", type=float)
+    parser.add_argument("--weight-decay", type=float)
     args = parser.parse_args()
+    if args.mode == "train" and (args.lr is None or args.weight_decay is None):
+        parser.error("--mode train needs --lr and --weight-decay")
     torch.set_num_threads(os.cpu_count())
     net, inputs, outputs, free = load(args.dir)
     report = {"torch": torch.__version__, "threads": torch.get_num_threads()}

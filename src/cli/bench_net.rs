@@ -98,11 +98,12 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         a.rounds,
         threads
     );
-    // Removed when dropped, whichever way this command ends.
-    let tmp = super::export_dir("plumenet-bench-net-")?;
-    let dir = tmp.path();
+    // The reference's exports, removed when dropped, whichever way this command ends.
+    let tmp = (!a.no_reference)
+        .then(|| super::export_dir("plumenet-bench-net-"))
+        .transpose()?;
     let mut identity = Value::Null;
-    if !a.no_reference {
+    if let Some(dir) = tmp.as_ref().map(|t| t.path()) {
         let tensors = export_reference(&model, &layout, &candidates, dir)?;
         identity = reference(&a.python, dir, &["--mode", "check"])?;
         println!(
@@ -130,7 +131,7 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             burn.bank[round - 1],
             burn.train[round - 1]
         );
-        if !a.no_reference {
+        if let Some(dir) = tmp.as_ref().map(|t| t.path()) {
             let r = reference(&a.python, dir, &["--mode", "bank"])?;
             torch
                 .bank

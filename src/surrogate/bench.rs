@@ -135,8 +135,9 @@ pub fn time_bank(model: &Surrogate, layout: &Layout, sources: &[[f64; 2]]) -> Re
 }
 
 /// Seconds per training step (forward, masked MSE, backward, AdamW update with the learning
-/// rate and weight decay of [`TrainingConfig::default`]) of a fresh network of `model`'s architecture, on batches of `batch` of the bank
-/// inputs with `model`'s own outputs as targets, after two warm-up steps.
+/// rate and weight decay of [`TrainingConfig::default`]) of a fresh network of `model`'s
+/// architecture, on batches of `batch` of the bank inputs with `model`'s own outputs as
+/// targets, after two warm-up steps.
 ///
 /// # Errors
 /// [`Error::Parameter`] for a zero batch or step count, [`Error::Model`] as for a bank.
