@@ -3,6 +3,7 @@
 mod common;
 
 mod cli;
+mod conv;
 mod dataset;
 mod filament;
 mod layout;

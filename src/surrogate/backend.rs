@@ -6,6 +6,14 @@
 
 use burn::prelude::Device;
 
+/// Whether PlumeNet's convolutions run our own kernels ([`super::conv`]), which exist for the
+/// Flex backend only; the other backends use Burn's convolution.
+pub const OWN_KERNELS: bool = cfg!(not(any(
+    feature = "cuda",
+    feature = "wgpu",
+    feature = "ndarray-backend"
+)));
+
 /// The inference device (call `.autodiff()` on it for training).
 #[cfg(not(any(feature = "cuda", feature = "wgpu", feature = "ndarray-backend")))]
 pub fn device() -> Device {

@@ -5,6 +5,7 @@
 
 pub mod backend;
 pub mod bench;
+pub mod conv;
 pub mod data;
 pub mod eval;
 pub mod inference;

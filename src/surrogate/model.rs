@@ -12,7 +12,9 @@ use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::prelude::*;
-use burn::tensor::activation::relu;
+use burn::tensor::activation::relu as relu_activation;
+
+use super::conv::conv2d_same;
 
 /// Architecture of PlumeNet (saved in `config.json`).
 #[derive(Config, Debug, PartialEq)]
@@ -29,6 +31,32 @@ pub struct PlumeNetConfig {
     /// Convolutions per block (DeepCFD: 3).
     #[config(default = 3)]
     pub convs_per_level: usize,
+}
+
+/// Which implementation runs PlumeNet's convolutions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConvImpl {
+    /// Our fused kernels ([`conv2d_same`]; Burn's convolution on backends they do not cover).
+    Own,
+    /// Burn's `nn::Conv2d` followed by `relu`, as before our kernels (for comparisons).
+    Burn,
+}
+
+/// `conv` ("same" padding, stride 1, with bias) applied to `x`, then ReLU if `relu`.
+fn same_conv(conv: &Conv2d, x: Tensor<4>, relu: bool, imp: ConvImpl) -> Tensor<4> {
+    match imp {
+        ConvImpl::Own => {
+            let bias = match &conv.bias {
+                Some(bias) => bias.val(),
+                None => Tensor::zeros([conv.weight.dims()[0]], &x.device()),
+            };
+            conv2d_same(x, conv.weight.val(), bias, relu)
+        }
+        ConvImpl::Burn => {
+            let out = conv.forward(x);
+            if relu { relu_activation(out) } else { out }
+        }
+    }
 }
 
 /// A block of convolutions with ReLU.
@@ -49,9 +77,9 @@ impl ConvBlock {
         Self { convs }
     }
 
-    fn forward(&self, mut x: Tensor<4>) -> Tensor<4> {
+    fn forward(&self, mut x: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
         for conv in &self.convs {
-            x = relu(conv.forward(x));
+            x = same_conv(conv, x, true, imp);
         }
         x
     }
@@ -134,6 +162,11 @@ impl PlumeNetConfig {
 impl PlumeNet {
     /// `[B, in_channels, H, W]` inputs to `[B, 1, H, W]` transformed concentrations.
     pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
+        self.forward_with(input, ConvImpl::Own)
+    }
+
+    /// [`PlumeNet::forward`] with the convolutions run by `imp`.
+    pub fn forward_with(&self, input: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
         let [b, _, h, w] = input.dims();
         let multiple = 1 << (self.encoders.len() - 1);
         let (ph, pw) = (
@@ -147,7 +180,7 @@ impl PlumeNet {
         };
         let mut skips = Vec::with_capacity(self.encoders.len());
         for (l, enc) in self.encoders.iter().enumerate() {
-            x = enc.forward(x);
+            x = enc.forward(x, imp);
             if l + 1 < self.encoders.len() {
                 skips.push(x.clone());
                 x = self.pool.forward(x);
@@ -155,9 +188,9 @@ impl PlumeNet {
         }
         for (up, dec) in self.ups.iter().zip(&self.decoders) {
             let skip = skips.pop().expect("one skip per decoder level");
-            x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1));
+            x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1), imp);
         }
-        let out = self.head.forward(x);
+        let out = same_conv(&self.head, x, false, imp);
         if ph + pw > 0 {
             out.slice([0..b, 0..1, 0..h, 0..w])
         } else {
