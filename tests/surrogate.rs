@@ -11,6 +11,7 @@ use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::surrogate::bench::{export_reference, forward_macs, time_bank, time_training};
 use plumenet::surrogate::inference::weights_bytes;
+use plumenet::surrogate::model::ConvImpl;
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainingConfig, TrainingData, train};
 
 use crate::common::wind_tunnel;
@@ -229,10 +230,10 @@ fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up(
     }
     assert_eq!(macs, forward_macs(&config.model, [16, 72]));
 
-    assert!(time_bank(&model, &layout, candidates).unwrap() > 0.0);
-    assert!(time_training(&model, &layout, candidates, 2, 1).unwrap() > 0.0);
+    assert!(time_bank(&model, &layout, candidates, ConvImpl::Own).unwrap() > 0.0);
+    assert!(time_training(&model, &layout, candidates, (2, 1), ConvImpl::Burn).unwrap() > 0.0);
     assert!(matches!(
-        time_training(&model, &layout, candidates, 6, 1),
+        time_training(&model, &layout, candidates, (6, 1), ConvImpl::Own),
         Err(Error::Parameter(_))
     ));
 }

@@ -1,5 +1,6 @@
-//! `bench-net`: PlumeNet's bank and training throughput, side by side with the identical
-//! network in PyTorch (`scripts/torch_unet_bench.py`), in interleaved rounds.
+//! `bench-net`: PlumeNet's bank and training throughput with our convolutions, side by side
+//! with Burn's own convolutions (the path before ours) and with the identical network in
+//! PyTorch (`scripts/torch_unet_bench.py`), in interleaved rounds.
 
 use std::path::{Path, PathBuf};
 use std::process::Command as Process;
@@ -14,7 +15,13 @@ use plumenet::layout::Layout;
 use plumenet::surrogate::bench::{
     cpu_peak, export_reference, forward_macs, time_bank, time_training,
 };
+use plumenet::surrogate::conv::kernel::Isa;
+use plumenet::surrogate::model::ConvImpl;
 use plumenet::surrogate::{Surrogate, TrainingConfig};
+
+/// Samples in the dataset the README trains the shipped model on (300 layouts x 8 sources),
+/// for the epoch-time estimate.
+const README_SAMPLES: f64 = 2400.0;
 
 /// Flags of `bench-net`.
 #[derive(Debug, Args)]
@@ -43,6 +50,9 @@ pub struct BenchNetArgs {
     /// Skip the PyTorch reference.
     #[arg(long)]
     no_reference: bool,
+    /// Skip Burn's own convolutions (the path before ours).
+    #[arg(long)]
+    no_burn_conv: bool,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -114,23 +124,37 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             identity["max_abs_output"].as_f64().unwrap_or(f64::NAN),
         );
     }
-    let (mut burn, mut torch) = (Side::default(), Side::default());
+    let (mut ours, mut burn, mut torch) = (Side::default(), Side::default(), Side::default());
     let (batch, steps) = (a.batch.to_string(), a.steps.to_string());
     let defaults = TrainingConfig::default();
     let (lr, weight_decay) = (
         defaults.learning_rate.to_string(),
         defaults.weight_decay.to_string(),
     );
+    let mut sides = vec![("ours", ConvImpl::Own)];
+    if !a.no_burn_conv {
+        sides.push(("burn-conv", ConvImpl::Burn));
+    }
     for round in 1..=a.rounds {
-        burn.bank
-            .push(n as f64 / time_bank(&model, &layout, &candidates)?);
-        burn.train
-            .push(a.batch as f64 / time_training(&model, &layout, &candidates, a.batch, a.steps)?);
-        let mut line = format!(
-            "round {round}: burn bank {:7.1} img/s, train {:6.1} img/s",
-            burn.bank[round - 1],
-            burn.train[round - 1]
-        );
+        let mut line = format!("round {round}:");
+        for &(name, imp) in &sides {
+            let side = if imp == ConvImpl::Own {
+                &mut ours
+            } else {
+                &mut burn
+            };
+            side.bank
+                .push(n as f64 / time_bank(&model, &layout, &candidates, imp)?);
+            side.train.push(
+                a.batch as f64
+                    / time_training(&model, &layout, &candidates, (a.batch, a.steps), imp)?,
+            );
+            line += &format!(
+                " {name} bank {:6.1} img/s, train {:5.1} img/s |",
+                side.bank[round - 1],
+                side.train[round - 1]
+            );
+        }
         if let Some(dir) = tmp.as_ref().map(|t| t.path()) {
             let r = reference(&a.python, dir, &["--mode", "bank"])?;
             torch
@@ -156,12 +180,12 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
                 .train
                 .push(a.batch as f64 / r["seconds_per_step"].as_f64().unwrap_or(f64::NAN));
             line += &format!(
-                " | torch bank {:7.1} img/s, train {:6.1} img/s",
+                " torch bank {:6.1} img/s, train {:5.1} img/s",
                 torch.bank[round - 1],
                 torch.train[round - 1]
             );
         }
-        println!("{line}");
+        println!("{}", line.trim_end_matches(" |"));
     }
 
     // A training step is a forward pass and a backward pass; the backward pass computes the
@@ -177,7 +201,8 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
     let mut report = json!({
         "model": a.model, "layout": a.layout, "candidates": n, "grid": grid,
         "forward_macs": macs, "threads": threads, "rounds": a.rounds, "batch": a.batch,
-        "steps": a.steps, "burn_bank_images_per_s": burn.bank, "burn_train_images_per_s": burn.train,
+        "steps": a.steps, "isa": format!("{:?}", Isa::best()),
+        "ours_bank_images_per_s": ours.bank, "ours_train_images_per_s": ours.train,
     });
     if let Some(p) = &peak {
         println!(
@@ -189,29 +214,63 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         );
         report["peak_gflops"] = json!(p.gflops());
     }
-    for (what, burn_rates, torch_rates, passes) in [
-        ("bank", &burn.bank, &torch.bank, 1.0),
-        ("training", &burn.train, &torch.train, 3.0),
-    ] {
-        let burn_rate = median(burn_rates.clone());
-        let g = gflops(burn_rate, passes);
-        let mut line = format!(
-            "{what:8}: burn {burn_rate:7.1} img/s ({g:.1} GFLOP/s{})",
+    let mut ratios = serde_json::Map::new();
+    for (what, key, passes) in [("bank", "bank", 1.0), ("training", "train", 3.0)] {
+        let rates = |side: &Side| {
+            if key == "bank" {
+                side.bank.clone()
+            } else {
+                side.train.clone()
+            }
+        };
+        let rate = median(rates(&ours));
+        let g = gflops(rate, passes);
+        println!(
+            "{what:8}: ours      {rate:7.1} img/s ({g:5.1} GFLOP/s{})",
             of_peak(g)
         );
-        if !a.no_reference {
-            let torch_rate = median(torch_rates.clone());
-            let t = gflops(torch_rate, passes);
-            line += &format!(
-                ", torch {torch_rate:7.1} img/s ({t:.1} GFLOP/s{}); burn / torch = {:.2}x",
-                of_peak(t),
-                burn_rate / torch_rate
+        for (name, side, used) in [
+            ("burn-conv", &burn, !a.no_burn_conv),
+            ("torch", &torch, !a.no_reference),
+        ] {
+            if !used {
+                continue;
+            }
+            let other = median(rates(side));
+            let o = gflops(other, passes);
+            println!(
+                "{:8}  {name:9} {other:7.1} img/s ({o:5.1} GFLOP/s{}); ours / {name} = {:.2}x",
+                "",
+                of_peak(o),
+                rate / other
             );
-            report[format!("torch_{what}_images_per_s")] = json!(torch_rates);
-            report[format!("ratio_{what}")] = json!(burn_rate / torch_rate);
+            let name = name.replace('-', "_");
+            report[format!("{name}_{key}_images_per_s")] = json!(rates(side));
+            ratios.insert(format!("{what}_ours_over_{name}"), json!(rate / other));
         }
-        println!("{line}");
     }
+    let train_share = 1.0 - defaults.validation_fraction;
+    let bank_s = |side: &Side| n as f64 / median(side.bank.clone());
+    let epoch_s = |side: &Side| {
+        README_SAMPLES * train_share / median(side.train.clone())
+            + README_SAMPLES * (1.0 - train_share) / median(side.bank.clone())
+    };
+    println!(
+        "bank of {n} candidates: ours {:.1} s{}; one epoch of {README_SAMPLES} samples (estimated from the rates): ours {:.0} s{}",
+        bank_s(&ours),
+        if a.no_burn_conv {
+            String::new()
+        } else {
+            format!(", burn-conv {:.1} s", bank_s(&burn))
+        },
+        epoch_s(&ours),
+        if a.no_burn_conv {
+            String::new()
+        } else {
+            format!(", burn-conv {:.0} s", epoch_s(&burn))
+        },
+    );
+    report["ratios"] = Value::Object(ratios);
     report["identity"] = identity;
     if let Some(path) = &a.json {
         io::write_json(path, &report)?;

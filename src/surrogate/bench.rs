@@ -18,7 +18,7 @@ use ndarray::{ArrayD, IxDyn};
 
 use super::data::INPUT_CHANNELS;
 use super::inference::Surrogate;
-use super::model::PlumeNetConfig;
+use super::model::{ConvImpl, PlumeNetConfig};
 use super::training::{TrainingConfig, masked_mse};
 use crate::error::{Error, Result};
 use crate::io;
@@ -122,13 +122,18 @@ pub fn export_reference(
 }
 
 /// Seconds for the whole bank of `sources` in `layout` (input encoding, batched forward passes
-/// and the inverse transform: what the STE waits for).
+/// and the inverse transform: what the STE waits for), with the convolutions run by `imp`.
 ///
 /// # Errors
 /// As [`Surrogate::predict_many`].
-pub fn time_bank(model: &Surrogate, layout: &Layout, sources: &[[f64; 2]]) -> Result<f64> {
+pub fn time_bank(
+    model: &Surrogate,
+    layout: &Layout,
+    sources: &[[f64; 2]],
+    imp: ConvImpl,
+) -> Result<f64> {
     let start = Instant::now();
-    let bank = model.predict_many(layout, sources)?;
+    let bank = model.predict_many_with(layout, sources, imp)?;
     let seconds = start.elapsed().as_secs_f64();
     std::hint::black_box(bank);
     Ok(seconds)
@@ -137,7 +142,7 @@ pub fn time_bank(model: &Surrogate, layout: &Layout, sources: &[[f64; 2]]) -> Re
 /// Seconds per training step (forward, masked MSE, backward, AdamW update with the learning
 /// rate and weight decay of [`TrainingConfig::default`]) of a fresh network of `model`'s
 /// architecture, on batches of `batch` of the bank inputs with `model`'s own outputs as
-/// targets, after two warm-up steps.
+/// targets, after two warm-up steps, with the convolutions run by `imp`.
 ///
 /// # Errors
 /// [`Error::Parameter`] for a zero batch or step count, [`Error::Model`] as for a bank.
@@ -145,8 +150,8 @@ pub fn time_training(
     model: &Surrogate,
     layout: &Layout,
     sources: &[[f64; 2]],
-    batch: usize,
-    steps: usize,
+    (batch, steps): (usize, usize),
+    imp: ConvImpl,
 ) -> Result<f64> {
     if batch == 0 || steps == 0 || sources.len() < batch {
         return Err(Error::Parameter(format!(
@@ -181,7 +186,7 @@ pub fn time_training(
         if step == 2 {
             start = Instant::now();
         }
-        let loss = masked_mse(net.forward(x.clone()), y.clone(), free.clone());
+        let loss = masked_mse(net.forward_with(x.clone(), imp), y.clone(), free.clone());
         std::hint::black_box(loss.clone().into_scalar::<f32>());
         let grads = GradientsParams::from_grads(loss.backward(), &net);
         net = optim.step(defaults.learning_rate, net, grads);

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::data::{
     INPUT_CHANNELS, Normalization, SourceEncoding, TrainingData, encode_input, layout_planes,
 };
-use super::model::{PlumeNet, PlumeNetConfig};
+use super::model::{ConvImpl, PlumeNet, PlumeNetConfig};
 use super::training::{TrainState, TrainingConfig};
 use crate::error::{Error, Result};
 use crate::io;
@@ -237,6 +237,14 @@ impl Surrogate {
     /// # Errors
     /// [`Error::Model`] when `input` does not hold whole samples of this grid.
     pub fn forward_raw(&self, input: Vec<f32>) -> Result<Vec<f32>> {
+        self.forward_raw_with(input, ConvImpl::Own)
+    }
+
+    /// [`Surrogate::forward_raw`] with the convolutions run by `imp`.
+    ///
+    /// # Errors
+    /// As [`Surrogate::forward_raw`].
+    pub fn forward_raw_with(&self, input: Vec<f32>, imp: ConvImpl) -> Result<Vec<f32>> {
         let [h, w] = self.saved.grid;
         let per_sample = INPUT_CHANNELS * h * w;
         if input.is_empty() || input.len() % per_sample != 0 {
@@ -251,7 +259,7 @@ impl Surrogate {
             &self.device,
         );
         self.net
-            .forward(x)
+            .forward_with(x, imp)
             .into_data()
             .try_to_vec::<f32>()
             .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))
@@ -263,6 +271,19 @@ impl Surrogate {
     /// # Errors
     /// [`Error::Model`] for another grid, [`Error::Source`] for a source outside free space.
     pub fn predict_many(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Array3<f32>> {
+        self.predict_many_with(layout, sources, ConvImpl::Own)
+    }
+
+    /// [`Surrogate::predict_many`] with the convolutions run by `imp`.
+    ///
+    /// # Errors
+    /// As [`Surrogate::predict_many`].
+    pub fn predict_many_with(
+        &self,
+        layout: &Layout,
+        sources: &[[f64; 2]],
+        imp: ConvImpl,
+    ) -> Result<Array3<f32>> {
         let (h, w) = layout.shape();
         let solid = layout.solid();
         let norm = self.saved.normalization;
@@ -272,7 +293,7 @@ impl Surrogate {
             .into_iter()
             .zip(out.axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK))
         {
-            let values = self.forward_raw(input)?;
+            let values = self.forward_raw_with(input, imp)?;
             for (((_, j, i), slot), v) in fields.indexed_iter_mut().zip(values) {
                 *slot = if solid[[j, i]] { 0.0 } else { norm.inverse(v) };
             }

@@ -4,8 +4,11 @@
 //! Every plane is first copied into a zero-padded frame `wp = w + 2p` cells wide (`p = k / 2`),
 //! so that the output cell `q = y wp + x` reads input cell `q + ky wp + kx` for tap `(ky, kx)`:
 //! one flat index with no bounds to check. Outputs are computed over the whole frame (the `2p`
-//! extra columns of each row are discarded) in tiles of `XW` vectors times [`COB`] output
-//! channels held in registers; each tap loads `XW` input vectors and broadcasts `COB` weights.
+//! extra columns of each row are discarded) in tiles of `XW` vectors times `COB` output
+//! channels held in registers; each tap broadcasts `COB` weights and loads `XW` input vectors.
+//! The blocking is chosen per instruction set so that the accumulators, the broadcasts and one
+//! input vector fit the vector registers with no spill (16 on AVX2: 2 x 6 accumulators; 32 on
+//! AVX-512: 4 x 6) and give at least as many independent FMAs as the FMA latency needs.
 //! The input gradient is the same convolution of the padded output gradient with the weights
 //! transposed and flipped; the weight gradient is, for each tap, the dot product of an output
 //! gradient plane with the shifted input plane, `COB` output channels times `k` taps of one row
@@ -21,12 +24,16 @@ use std::sync::OnceLock;
 use pulp::{Simd, WithSimd};
 use rayon::prelude::*;
 
-/// Output channels computed together by one kernel call.
-pub const COB: usize = 4;
+/// The largest block of output channels of any kernel: gradient planes are allocated in
+/// multiples of it.
+const MAX_COB: usize = 4;
 
-/// Extra zero cells after every padded plane: at least one tile (16 lanes x 4 vectors) plus a
-/// kernel row, so that the last tile's reads stay inside the buffer.
-const SLACK: usize = 128;
+/// The longest forward tile (16 lanes x 6 vectors).
+const TILE_MAX: usize = 96;
+
+/// Extra zero cells after every padded plane: at least one tile plus a kernel row's overhang,
+/// so that the last tile's reads stay inside the buffer.
+const SLACK: usize = TILE_MAX + 16;
 
 /// Kernel sides the kernels take (odd; the slack above bounds them).
 pub const KERNELS: [usize; 4] = [1, 3, 5, 7];
@@ -99,27 +106,33 @@ impl Frame {
         self.h * self.wp
     }
 
-    /// Copies `images x channels` planes of `h x w` into zero-padded planes, `channels_alloc`
-    /// of them per image (the extra ones zero); with `mask`, cells where the mask is not
-    /// positive become zero (the ReLU derivative).
-    fn pad(
+    /// Writes `images x channels` planes of `h x w` as zero-padded planes into `out` (resized
+    /// to `images x channels_alloc` planes; the extra ones zero), every cell once; with `mask`,
+    /// cells where the mask is not positive become zero (the ReLU derivative).
+    fn pad_into(
         &self,
+        out: &mut Vec<f32>,
         src: &[f32],
         mask: Option<&[f32]>,
-        images: usize,
-        channels: usize,
-        channels_alloc: usize,
-    ) -> Vec<f32> {
+        [images, channels, channels_alloc]: [usize; 3],
+    ) {
         let (h, w, p, wp) = (self.h, self.w, self.p, self.wp);
-        let mut out = vec![0.0f32; images * channels_alloc * self.plane];
+        out.resize(images * channels_alloc * self.plane, 0.0);
+        out.truncate(images * channels_alloc * self.plane);
         out.par_chunks_mut(self.plane)
             .enumerate()
-            .filter(|(i, _)| i % channels_alloc < channels)
             .for_each(|(i, dst)| {
+                if i % channels_alloc >= channels {
+                    dst.fill(0.0);
+                    return;
+                }
                 let plane = i / channels_alloc * channels + i % channels_alloc;
+                // Top padding and the left padding of the first row.
+                dst[..p * wp + p].fill(0.0);
                 for y in 0..h {
                     let at = (plane * h + y) * w;
-                    let d = &mut dst[(y + p) * wp + p..][..w];
+                    let start = (y + p) * wp + p;
+                    let d = &mut dst[start..][..w];
                     match mask {
                         None => d.copy_from_slice(&src[at..][..w]),
                         Some(m) => {
@@ -130,10 +143,27 @@ impl Frame {
                             }
                         }
                     }
+                    // This row's right padding and the next row's left padding.
+                    dst[start + w..][..2 * p].fill(0.0);
                 }
+                // Bottom padding and slack.
+                dst[(h + p) * wp + p..].fill(0.0);
             });
-        out
     }
+}
+
+/// Reusable padded buffers of the calling thread (a training step pads the same sizes over and
+/// over; fresh buffers cost page faults and zeroing).
+fn with_buffer<T>(slot: usize, f: impl FnOnce(&mut Vec<f32>) -> T) -> T {
+    thread_local! {
+        static BUFFERS: std::cell::RefCell<[Vec<f32>; 2]> = const {
+            std::cell::RefCell::new([Vec::new(), Vec::new()])
+        };
+    }
+    let mut buffer = BUFFERS.with(|b| std::mem::take(&mut b.borrow_mut()[slot]));
+    let result = f(&mut buffer);
+    BUFFERS.with(|b| b.borrow_mut()[slot] = buffer);
+    result
 }
 
 /// Instruction set of the kernels.
@@ -167,6 +197,12 @@ impl Isa {
             }
         }
         isas
+    }
+
+    /// Output channels per forward block and per weight-gradient block: as many accumulators
+    /// as the registers hold (32 vector registers on AVX-512, 16 otherwise).
+    fn cob(self) -> usize {
+        if self == Isa::Avx512 { 4 } else { 2 }
     }
 
     /// Runs `op` compiled for this instruction set (portable code if the CPU lacks it).
@@ -209,15 +245,14 @@ unsafe fn store<S: Simd>(ptr: *mut f32, value: S::f32s) {
     unsafe { ptr.cast::<S::f32s>().write_unaligned(value) }
 }
 
-/// Packs `[cout, cin, k, k]` weights as `[cout / COB][ins_alloc][k][k][COB]` (zeros past
+/// Packs `[cout, cin, k, k]` weights as `[cout / cob][ins_alloc][k][k][cob]` (zeros past
 /// `cout` and past `cin`). With `transpose_flip`, packs the weights of the input gradient
 /// instead: output channel `i` and input channel `o` of the result are `w[o][i]` rotated by
 /// 180 degrees.
 fn pack(
     w: &[f32],
-    cout: usize,
-    cin: usize,
-    k: usize,
+    [cout, cin, k]: [usize; 3],
+    cob: usize,
     transpose_flip: bool,
     ins_alloc: usize,
 ) -> Vec<f32> {
@@ -226,8 +261,8 @@ fn pack(
     } else {
         (cout, cin)
     };
-    let blocks = outs.div_ceil(COB);
-    let mut packed = vec![0.0f32; blocks * ins_alloc * k * k * COB];
+    let blocks = outs.div_ceil(cob);
+    let mut packed = vec![0.0f32; blocks * ins_alloc * k * k * cob];
     for o in 0..outs {
         for i in 0..ins {
             for ky in 0..k {
@@ -237,7 +272,7 @@ fn pack(
                     } else {
                         w[((o * cin + i) * k + ky) * k + kx]
                     };
-                    packed[((((o / COB) * ins_alloc + i) * k + ky) * k + kx) * COB + o % COB] =
+                    packed[((((o / cob) * ins_alloc + i) * k + ky) * k + kx) * cob + o % cob] =
                         value;
                 }
             }
@@ -246,17 +281,19 @@ fn pack(
     packed
 }
 
-/// One image and one block of [`COB`] output channels over the whole frame.
+/// One image and one block of `cob` output channels over the whole frame.
 struct ForwardTask<'a> {
     frame: Frame,
     cin: usize,
+    cob: usize,
     /// `cin` padded planes of one image.
     xp: &'a [f32],
-    /// Packed weights of this block, `[cin][k][k][COB]`.
+    /// Packed weights of this block, `[cin][k][k][cob]`.
     weights: &'a [f32],
-    bias: [f32; COB],
+    /// Bias of each channel of the block.
+    bias: [f32; MAX_COB],
     relu: bool,
-    /// `COB` output planes of `frame.plane` cells.
+    /// The block's output planes of `h x w` (up to `cob` of them: the last block may be short).
     out: &'a mut [f32],
 }
 
@@ -265,49 +302,48 @@ impl WithSimd for ForwardTask<'_> {
 
     #[inline(always)]
     fn with_simd<S: Simd>(self, simd: S) {
-        if S::F32_LANES >= 16 {
-            self.tiles::<S, 2>(simd)
-        } else {
-            self.tiles::<S, 3>(simd)
+        match self.cob {
+            4 => self.tiles::<S, 4, 6>(simd),
+            _ => self.tiles::<S, 2, 6>(simd),
         }
     }
 }
 
 impl ForwardTask<'_> {
     #[inline(always)]
-    fn tiles<S: Simd, const XW: usize>(self, simd: S) {
+    fn tiles<S: Simd, const COB: usize, const XW: usize>(self, simd: S) {
         let lanes = S::F32_LANES;
         let tile = lanes * XW;
         let Frame { k, wp, plane, .. } = self.frame;
         let cells = self.frame.cells();
-        assert!(tile <= 64 && cells + tile + (k - 1) * (wp + 1) <= plane);
-        assert!(self.xp.len() >= self.cin * plane && self.out.len() >= COB * plane);
+        assert!(self.cob == COB && COB <= MAX_COB && tile <= TILE_MAX);
+        assert!(cells + tile + (k - 1) * (wp + 1) <= plane);
+        assert!(self.xp.len() >= self.cin * plane);
         assert!(self.weights.len() >= self.cin * k * k * COB);
+        let (h, w) = (self.frame.h, self.frame.w);
+        let planes = self.out.len() / (h * w);
         let zero = simd.splat_f32s(0.0);
         let xp = self.xp.as_ptr();
         let wt = self.weights.as_ptr();
-        let out = self.out.as_mut_ptr();
+        let mut tile_out = [0.0f32; MAX_COB * TILE_MAX];
         let mut q0 = 0;
         while q0 < cells {
-            let mut acc = [[zero; XW]; COB];
-            for (c, row) in acc.iter_mut().enumerate() {
-                *row = [simd.splat_f32s(self.bias[c]); XW];
-            }
+            let mut acc: [[S::f32s; XW]; COB] =
+                std::array::from_fn(|c| [simd.splat_f32s(self.bias[c]); XW]);
             for ci in 0..self.cin {
                 for ky in 0..k {
                     for kx in 0..k {
                         let offset = ci * plane + q0 + ky * wp + kx;
                         let tap = ((ci * k + ky) * k + kx) * COB;
-                        // SAFETY: offset + tile <= (ci + 1) * plane because q0 < cells and
-                        // cells + tile + (k - 1) (wp + 1) <= plane; tap + COB <= weights.len()
+                        // SAFETY: tap + COB <= weights.len(); offset + tile <= (ci + 1) plane
+                        // because q0 < cells and cells + tile + (k - 1) (wp + 1) <= plane
                         // (both asserted).
-                        let v: [S::f32s; XW] = std::array::from_fn(|j| unsafe {
-                            load::<S>(xp.add(offset + j * lanes))
-                        });
-                        for (c, row) in acc.iter_mut().enumerate() {
-                            let wc = simd.splat_f32s(unsafe { *wt.add(tap + c) });
-                            for (a, &x) in row.iter_mut().zip(&v) {
-                                *a = simd.mul_add_e_f32s(wc, x, *a);
+                        let w: [S::f32s; COB] =
+                            std::array::from_fn(|c| simd.splat_f32s(unsafe { *wt.add(tap + c) }));
+                        for j in 0..XW {
+                            let x = unsafe { load::<S>(xp.add(offset + j * lanes)) };
+                            for (row, &wc) in acc.iter_mut().zip(&w) {
+                                row[j] = simd.mul_add_e_f32s(wc, x, row[j]);
                             }
                         }
                     }
@@ -316,9 +352,25 @@ impl ForwardTask<'_> {
             for (c, row) in acc.iter().enumerate() {
                 for (j, &a) in row.iter().enumerate() {
                     let a = if self.relu { simd.max_f32s(a, zero) } else { a };
-                    // SAFETY: c * plane + q0 + tile <= COB * plane (asserted).
-                    unsafe { store::<S>(out.add(c * plane + q0 + j * lanes), a) };
+                    // SAFETY: (c + 1) tile <= MAX_COB TILE_MAX (asserted).
+                    unsafe { store::<S>(tile_out.as_mut_ptr().add(c * tile + j * lanes), a) };
                 }
+            }
+            // Copy the tile's cells that lie inside the image (not in the padding columns).
+            let end = (q0 + tile).min(cells);
+            let mut q = q0;
+            while q < end {
+                let (y, x) = (q / wp, q % wp);
+                if x >= w {
+                    q += wp - x;
+                    continue;
+                }
+                let run = (w - x).min(end - q);
+                for c in 0..planes {
+                    self.out[c * h * w + y * w + x..][..run]
+                        .copy_from_slice(&tile_out[c * tile + q - q0..][..run]);
+                }
+                q += run;
             }
             q0 += tile;
         }
@@ -350,37 +402,34 @@ fn convolve_padded(
         batch,
         channels: cin,
     } = input;
-    let blocks = cout.div_ceil(COB);
-    let block_weights = cin * frame.k * frame.k * COB;
-    let mut scratch = vec![0.0f32; batch * blocks * COB * frame.plane];
-    scratch
-        .par_chunks_mut(COB * frame.plane)
+    let cob = isa.cob();
+    let block_weights = cin * frame.k * frame.k * cob;
+    let image = cout * frame.h * frame.w;
+    let mut out = vec![0.0f32; batch * image];
+    out.par_chunks_mut(image)
         .enumerate()
-        .for_each(|(task, out)| {
-            let (b, block) = (task / blocks, task % blocks);
-            let bias = std::array::from_fn(|c| {
-                let co = block * COB + c;
-                bias.filter(|_| co < cout).map_or(0.0, |bias| bias[co])
-            });
-            isa.run(ForwardTask {
-                frame,
-                cin,
-                xp: &xp[b * cin * frame.plane..][..cin * frame.plane],
-                weights: &packed[block * block_weights..][..block_weights],
-                bias,
-                relu,
-                out,
-            });
+        .for_each(|(b, planes)| {
+            planes
+                .par_chunks_mut(cob * frame.h * frame.w)
+                .enumerate()
+                .for_each(|(block, out)| {
+                    let bias = std::array::from_fn(|c| {
+                        let co = block * cob + c;
+                        bias.filter(|_| c < cob && co < cout)
+                            .map_or(0.0, |bias| bias[co])
+                    });
+                    isa.run(ForwardTask {
+                        frame,
+                        cin,
+                        cob,
+                        xp: &xp[b * cin * frame.plane..][..cin * frame.plane],
+                        weights: &packed[block * block_weights..][..block_weights],
+                        bias,
+                        relu,
+                        out,
+                    });
+                });
         });
-    let (h, w, wp) = (frame.h, frame.w, frame.wp);
-    let mut out = vec![0.0f32; batch * cout * h * w];
-    out.par_chunks_mut(h * w).enumerate().for_each(|(i, dst)| {
-        let (b, co) = (i / cout, i % cout);
-        let src = &scratch[(b * blocks * COB + co) * frame.plane..];
-        for (y, row) in dst.chunks_mut(w).enumerate() {
-            row.copy_from_slice(&src[y * wp..][..w]);
-        }
-    });
     out
 }
 
@@ -410,15 +459,17 @@ pub fn forward(
     assert_eq!(w.len(), cout * cin * k * k);
     assert!(bias.is_none_or(|b| b.len() == cout));
     let frame = shape.frame();
-    let xp = frame.pad(x, None, batch, cin, cin);
-    let packed = pack(w, cout, cin, k, false, cin);
-    let input = Padded {
-        frame,
-        data: &xp,
-        batch,
-        channels: cin,
-    };
-    convolve_padded(isa, input, cout, &packed, bias, relu)
+    let packed = pack(w, [cout, cin, k], isa.cob(), false, cin);
+    with_buffer(0, |xp| {
+        frame.pad_into(xp, x, None, [batch, cin, cin]);
+        let input = Padded {
+            frame,
+            data: xp,
+            batch,
+            channels: cin,
+        };
+        convolve_padded(isa, input, cout, &packed, bias, relu)
+    })
 }
 
 /// Gradients of one convolution.
@@ -461,72 +512,81 @@ pub fn backward(
     assert_eq!(grad.len(), batch * cout * h * width);
     assert!(relu_out.is_none_or(|o| o.len() == grad.len()));
     let frame = shape.frame();
-    let blocks = cout.div_ceil(COB);
-    // The output gradient (ReLU applied) on padded planes, `blocks * COB` planes per image so
-    // that every block of the weight gradient reads whole blocks. Shifted by `p wp + p`, a
-    // padded plane is the gradient on the output frame with zeros in the extra columns.
-    let gplanes = blocks * COB;
-    let gp = frame.pad(grad, relu_out, batch, cout, gplanes);
-    let dx = need_x.then(|| {
-        let packed = pack(w, cout, cin, k, true, gplanes);
-        let input = Padded {
-            frame,
-            data: &gp,
-            batch,
-            channels: gplanes,
-        };
-        convolve_padded(isa, input, cin, &packed, None, false)
-    });
-    let xp = frame.pad(x, None, batch, cin, cin);
-    let tasks: Vec<(usize, usize)> = (0..blocks)
-        .flat_map(|block| (0..cin).map(move |ci| (block, ci)))
-        .collect();
-    let per_task: Vec<Vec<f32>> = tasks
-        .par_iter()
-        .map(|&(block, ci)| {
-            let mut out = vec![0.0f32; COB * k * k];
-            isa.run(WeightTask {
+    // The output gradient (ReLU applied) on padded planes, a multiple of the largest block per
+    // image so that every block of the weight gradient reads whole blocks. Shifted by
+    // `p wp + p`, a padded plane is the gradient on the output frame with zeros in the extra
+    // columns.
+    let cob = isa.cob();
+    let blocks = cout.div_ceil(cob);
+    let gplanes = cout.div_ceil(MAX_COB) * MAX_COB;
+    with_buffer(1, |gp| {
+        frame.pad_into(gp, grad, relu_out, [batch, cout, gplanes]);
+        let gp = &gp[..];
+        let dx = need_x.then(|| {
+            let packed = pack(w, [cout, cin, k], cob, true, gplanes);
+            let input = Padded {
                 frame,
+                data: gp,
                 batch,
-                gp: &gp,
-                gplanes,
-                block,
-                xp: &xp,
-                cin,
-                ci,
-                out: &mut out,
-            });
-            out
-        })
-        .collect();
-    let mut dw = vec![0.0f32; cout * cin * k * k];
-    for (&(block, ci), values) in tasks.iter().zip(&per_task) {
-        for c in 0..COB {
-            let co = block * COB + c;
-            if co < cout {
-                dw[(co * cin + ci) * k * k..][..k * k]
-                    .copy_from_slice(&values[c * k * k..][..k * k]);
+                channels: gplanes,
+            };
+            convolve_padded(isa, input, cin, &packed, None, false)
+        });
+        let tasks: Vec<(usize, usize)> = (0..blocks)
+            .flat_map(|block| (0..cin).map(move |ci| (block, ci)))
+            .collect();
+        let per_task: Vec<Vec<f32>> = with_buffer(0, |xp| {
+            frame.pad_into(xp, x, None, [batch, cin, cin]);
+            let xp = &xp[..];
+            tasks
+                .par_iter()
+                .map(|&(block, ci)| {
+                    let mut out = vec![0.0f32; cob * k * k];
+                    isa.run(WeightTask {
+                        frame,
+                        cob,
+                        batch,
+                        gp,
+                        gplanes,
+                        block,
+                        xp,
+                        cin,
+                        ci,
+                        out: &mut out,
+                    });
+                    out
+                })
+                .collect()
+        });
+        let mut dw = vec![0.0f32; cout * cin * k * k];
+        for (&(block, ci), values) in tasks.iter().zip(&per_task) {
+            for c in 0..cob {
+                let co = block * cob + c;
+                if co < cout {
+                    dw[(co * cin + ci) * k * k..][..k * k]
+                        .copy_from_slice(&values[c * k * k..][..k * k]);
+                }
             }
         }
-    }
-    let db = (0..cout)
-        .into_par_iter()
-        .map(|co| {
-            let mut sum = 0.0f64;
-            for b in 0..batch {
-                sum += grad_plane_sum(
-                    &frame,
-                    &gp[(b * gplanes + co) * frame.plane..][..frame.plane],
-                );
-            }
-            sum as f32
-        })
-        .collect();
-    ConvGrads {
-        x: dx,
-        weight: dw,
-        bias: db,
-    }
+        let db = (0..cout)
+            .into_par_iter()
+            .map(|co| {
+                (0..batch)
+                    .map(|b| {
+                        grad_plane_sum(
+                            &frame,
+                            &gp[(b * gplanes + co) * frame.plane..][..frame.plane],
+                        )
+                    })
+                    .sum::<f64>() as f32
+            })
+            .collect();
+        ConvGrads {
+            x: dx,
+            weight: dw,
+            bias: db,
+        }
+    })
 }
 
 /// Sum of the gradient over the valid cells of one padded plane.
@@ -541,10 +601,11 @@ fn grad_plane_sum(frame: &Frame, plane: &[f32]) -> f64 {
         .sum()
 }
 
-/// The weight gradient of one block of [`COB`] output channels and one input channel, summed
+/// The weight gradient of one block of `cob` output channels and one input channel, summed
 /// over the batch.
 struct WeightTask<'a> {
     frame: Frame,
+    cob: usize,
     batch: usize,
     /// Padded output-gradient planes, `gplanes` per image.
     gp: &'a [f32],
@@ -554,7 +615,7 @@ struct WeightTask<'a> {
     xp: &'a [f32],
     cin: usize,
     ci: usize,
-    /// `[COB][k][k]`.
+    /// `[cob][k][k]`.
     out: &'a mut [f32],
 }
 
@@ -563,11 +624,15 @@ impl WithSimd for WeightTask<'_> {
 
     #[inline(always)]
     fn with_simd<S: Simd>(self, simd: S) {
-        match self.frame.k {
-            1 => self.taps::<S, 1>(simd),
-            3 => self.taps::<S, 3>(simd),
-            5 => self.taps::<S, 5>(simd),
-            _ => self.taps::<S, 7>(simd),
+        match (self.cob, self.frame.k) {
+            (4, 1) => self.taps::<S, 4, 1>(simd),
+            (4, 3) => self.taps::<S, 4, 3>(simd),
+            (4, 5) => self.taps::<S, 4, 5>(simd),
+            (4, _) => self.taps::<S, 4, 7>(simd),
+            (_, 1) => self.taps::<S, 2, 1>(simd),
+            (_, 3) => self.taps::<S, 2, 3>(simd),
+            (_, 5) => self.taps::<S, 2, 5>(simd),
+            _ => self.taps::<S, 2, 7>(simd),
         }
     }
 }
@@ -575,12 +640,14 @@ impl WithSimd for WeightTask<'_> {
 impl WeightTask<'_> {
     /// `K` taps of one kernel row at a time in registers.
     #[inline(always)]
-    fn taps<S: Simd, const K: usize>(self, simd: S) {
+    fn taps<S: Simd, const COB: usize, const K: usize>(self, simd: S) {
         let lanes = S::F32_LANES;
         let Frame { p, wp, plane, .. } = self.frame;
         let cells = self.frame.cells();
         let shift = p * wp + p;
-        assert!(self.frame.k == K && cells + lanes + (K - 1) * (wp + 1) <= plane);
+        assert!(
+            self.cob == COB && self.frame.k == K && cells + lanes + (K - 1) * (wp + 1) <= plane
+        );
         assert!(self.gp.len() >= self.batch * self.gplanes * plane);
         assert!(self.xp.len() >= self.batch * self.cin * plane);
         assert!((self.block + 1) * COB <= self.gplanes && self.out.len() >= COB * K * K);
