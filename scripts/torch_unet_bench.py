@@ -15,7 +15,7 @@ JSON object):
   inputs, after two warm-up steps.
 
 Installs torch and numpy with pip when they are missing (only this benchmark needs Python).
-Uses every core (`torch.set_num_threads(os.cpu_count())`).
+Uses every core this process may run on (its CPU affinity, as plumenet's thread pool does).
 """
 import argparse
 import glob
@@ -124,7 +124,7 @@ def main():
     args = parser.parse_args()
     if args.mode == "train" and (args.lr is None or args.weight_decay is None):
         parser.error("--mode train needs --lr and --weight-decay")
-    torch.set_num_threads(os.cpu_count())
+    torch.set_num_threads(len(os.sched_getaffinity(0)))
     net, inputs, outputs, free = load(args.dir)
     report = {"torch": torch.__version__, "threads": torch.get_num_threads()}
     if args.mode == "check":

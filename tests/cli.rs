@@ -308,11 +308,22 @@ fn bench_net_reports_throughput_and_flop_rate() {
     assert!(stdout.contains("GFLOP/s"), "{stdout}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    for key in ["burn_bank_images_per_s", "burn_train_images_per_s"] {
+    for key in [
+        "ours_bank_images_per_s",
+        "ours_train_images_per_s",
+        "burn_conv_bank_images_per_s",
+        "burn_conv_train_images_per_s",
+    ] {
         let rates = report[key].as_array().unwrap();
         assert_eq!(rates.len(), 1);
         assert!(rates[0].as_f64().unwrap() > 0.0, "{key}: {rates:?}");
     }
+    // Each part's ratio is named; without the reference only ours against Burn's.
+    let ratios = report["ratios"].as_object().unwrap();
+    for key in ["bank_ours_over_burn_conv", "training_ours_over_burn_conv"] {
+        assert!(ratios[key].as_f64().unwrap() > 0.0, "{key}");
+    }
+    assert!(!ratios.contains_key("bank_ours_over_torch"));
     // The shipped network on the paper's grid: 150 M multiply-adds per image.
     let macs = report["forward_macs"].as_f64().unwrap();
     assert!((1.4e8..1.6e8).contains(&macs), "{macs}");

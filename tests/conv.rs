@@ -388,4 +388,9 @@ fn shipped_model_bank_unchanged() {
     // And the bank through the PlumeModel trait is the one from our kernels.
     let bank = model.bank(&layout, &sources).unwrap();
     assert_eq!(bank.fields.shape(), &[n, h, w]);
+    // The shipped config.json names its weights by the tensor digest.
+    assert_eq!(
+        plumenet::surrogate::saved::weights_digest(model.net()).unwrap(),
+        model.saved().weights_digest
+    );
 }

@@ -10,8 +10,8 @@ use plumenet::dataset::{self, GenerateConfig, GenerateParams};
 use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::surrogate::bench::{export_reference, forward_macs, time_bank, time_training};
-use plumenet::surrogate::inference::weights_bytes;
 use plumenet::surrogate::model::ConvImpl;
+use plumenet::surrogate::saved::{load_weights, weights_bytes, weights_digest};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainingConfig, TrainingData, train};
 
 use crate::common::wind_tunnel;
@@ -21,16 +21,6 @@ const COARSE: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_
 /// The coarse arena with one obstacle.
 const BLOCKED: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
     "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#;
-
-/// Burn's generator is global to the backend and concurrent trainings were seen to disturb each
-/// other's initial weights (see the issue notes); the training tests take turns.
-static TRAINING: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
-    TRAINING
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-}
 
 fn tiny_dataset(dir: &Path) -> TrainingData {
     let config = GenerateConfig {
@@ -62,7 +52,6 @@ fn tiny_config(epochs: usize) -> TrainingConfig {
 
 #[test]
 fn training_reduces_the_loss_and_resumes_exactly() {
-    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let data = tiny_dataset(&tmp.path().join("data"));
     let straight = train(&data, &tiny_config(20), &tmp.path().join("a"), &mut |_| ()).unwrap();
@@ -96,9 +85,91 @@ fn training_reduces_the_loss_and_resumes_exactly() {
     assert!(matches!(err, Error::Model(_)), "{err}");
 }
 
+/// Trainings running at the same time in one process start from the same seeded weights and
+/// end identical (the initial weights come from the run's own generator, not Burn's global
+/// one), and the weights digest names the weights, not the burnpack file's random ids.
+#[test]
+fn concurrent_trainings_are_identical() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let runs: Vec<_> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..3)
+            .map(|k| {
+                let (data, dir) = (&data, tmp.path().join(format!("run{k}")));
+                scope.spawn(move || {
+                    let state = train(data, &tiny_config(3), &dir, &mut |_| ()).unwrap();
+                    (state.history, Surrogate::load(&dir).unwrap())
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (history, model) in &runs[1..] {
+        assert_eq!(history, &runs[0].0);
+        assert_eq!(
+            model.saved().weights_digest,
+            runs[0].1.saved().weights_digest
+        );
+        assert_eq!(
+            weights_digest(model.net()).unwrap(),
+            model.saved().weights_digest
+        );
+    }
+    // Different seeds, different weights; the same seed twice, the same weights.
+    let device = plumenet::surrogate::backend::device();
+    let config = tiny_config(1).model;
+    let digest = |seed| weights_digest(&config.init_seeded(&device, seed)).unwrap();
+    assert_eq!(digest(4), digest(4));
+    assert_ne!(digest(4), digest(5));
+}
+
+/// The seeded initialisation draws Burn's default distribution: uniform in +-1/sqrt(fan_in).
+#[test]
+fn seeded_initial_weights_follow_the_default_distribution() {
+    let device = plumenet::surrogate::backend::device();
+    let net = PlumeNetConfig::new().init_seeded(&device, 0);
+    let tensors = plumenet::surrogate::saved::named_tensors(&net).unwrap();
+    assert_eq!(tensors.len(), 2 * (4 * 3 + 3 * 3 + 3 + 1));
+    for (name, array) in tensors {
+        let fan_in = if name.starts_with("ups") {
+            // Transposed: [in, out, k, k]; the bias has `out` entries.
+            if name.ends_with("bias") {
+                array.len() * 4
+            } else {
+                array.shape()[1] * 4
+            }
+        } else if name.ends_with("bias") {
+            // The bias of a convolution shares its weight's fan-in: checked by the bound only.
+            0
+        } else {
+            array.len() / array.shape()[0]
+        };
+        let max = array.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        if fan_in > 0 {
+            let bound = 1.0 / (fan_in as f32).sqrt();
+            assert!(
+                max <= bound && max > 0.5 * bound,
+                "{name}: {max} vs {bound}"
+            );
+            if array.len() >= 400 {
+                let n = array.len() as f32;
+                let mean = array.iter().sum::<f32>() / n;
+                let var = array.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / n;
+                assert!(mean.abs() < 0.1 * bound, "{name}: mean {mean}");
+                let expected = bound * bound / 3.0;
+                assert!(
+                    (var / expected - 1.0).abs() < 0.15,
+                    "{name}: variance {var}"
+                );
+            }
+        } else {
+            assert!(max > 0.0 && max < 1.0, "{name}");
+        }
+    }
+}
+
 #[test]
 fn saved_models_load_bit_identically_and_bad_files_are_errors() {
-    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let data = tiny_dataset(&tmp.path().join("data"));
     let dir = tmp.path().join("model");
@@ -140,15 +211,11 @@ fn saved_models_load_bit_identically_and_bad_files_are_errors() {
     let net = tiny_config(1)
         .model
         .init(&plumenet::surrogate::backend::device());
-    assert!(matches!(
-        plumenet::surrogate::inference::load_weights(net, &junk),
-        Err(Error::Model(_))
-    ));
+    assert!(matches!(load_weights(net, &junk), Err(Error::Model(_))));
 }
 
 #[test]
 fn both_plume_models_give_the_same_bank_layout() {
-    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let data = tiny_dataset(&tmp.path().join("data"));
     let dir = tmp.path().join("model");
@@ -177,7 +244,6 @@ fn both_plume_models_give_the_same_bank_layout() {
 
 #[test]
 fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up() {
-    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let data = tiny_dataset(&tmp.path().join("data"));
     let dir = tmp.path().join("model");

@@ -11,15 +11,16 @@
 use std::path::Path;
 use std::time::Instant;
 
-use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
 use ndarray::{ArrayD, IxDyn};
 
+use super::config::TrainingConfig;
 use super::data::INPUT_CHANNELS;
 use super::inference::Surrogate;
 use super::model::{ConvImpl, PlumeNetConfig};
-use super::training::{TrainingConfig, masked_mse};
+use super::saved::named_tensors;
+use super::training::masked_mse;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::Layout;
@@ -45,36 +46,6 @@ pub fn forward_macs(config: &PlumeNetConfig, [h, w]: [usize; 2]) -> u64 {
         macs += block(l, 2 * f[l], f[l]);
     }
     macs + pixels(0) * f[0] as u64
-}
-
-/// Collects every float parameter with its dotted module path.
-#[derive(Default)]
-struct Collect {
-    path: Vec<String>,
-    tensors: Vec<(String, ArrayD<f32>)>,
-    error: Option<String>,
-}
-
-impl ModuleVisitor for Collect {
-    fn enter_module(&mut self, name: &str, _container_type: &str) {
-        self.path.push(name.to_string());
-    }
-
-    fn exit_module(&mut self, _name: &str, _container_type: &str) {
-        self.path.pop();
-    }
-
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        let tensor = param.val();
-        let shape = tensor.dims().to_vec();
-        match tensor.into_data().try_to_vec::<f32>() {
-            Ok(values) => match ArrayD::from_shape_vec(IxDyn(&shape), values) {
-                Ok(array) => self.tensors.push((self.path.join("."), array)),
-                Err(e) => self.error = Some(e.to_string()),
-            },
-            Err(e) => self.error = Some(format!("{e:?}")),
-        }
-    }
 }
 
 /// Writes, into `dir`: `inputs.npy` `[N, C, H, W]` (the bank's network inputs), `outputs.npy`
@@ -110,15 +81,11 @@ pub fn export_reference(
         &dir.join("solid.npy"),
         &layout.solid().mapv(|s| f32::from(u8::from(s))),
     )?;
-    let mut collect = Collect::default();
-    model.net().visit(&mut collect);
-    if let Some(e) = collect.error {
-        return Err(Error::Model(format!("cannot read a weight tensor: {e}")));
-    }
-    for (name, array) in &collect.tensors {
+    let tensors = named_tensors(model.net())?;
+    for (name, array) in &tensors {
         io::write_npy(&dir.join("weights").join(format!("{name}.npy")), array)?;
     }
-    Ok(collect.tensors.len())
+    Ok(tensors.len())
 }
 
 /// Seconds for the whole bank of `sources` in `layout` (input encoding, batched forward passes

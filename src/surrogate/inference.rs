@@ -1,128 +1,21 @@
-//! A trained PlumeNet on disk (`weights.bpk` + `config.json`), loaded for prediction and banks.
+//! A trained PlumeNet ([`super::saved`]) loaded for prediction and banks.
 
 use std::path::{Path, PathBuf};
 
-use burn::module::Module;
 use burn::prelude::*;
-use burn::store::ModuleRecord;
 use ndarray::{Array2, Array3};
-use serde::{Deserialize, Serialize};
 
-use super::data::{
-    INPUT_CHANNELS, Normalization, SourceEncoding, TrainingData, encode_input, layout_planes,
-};
-use super::model::{ConvImpl, PlumeNet, PlumeNetConfig};
-use super::training::{TrainState, TrainingConfig};
+use super::data::{INPUT_CHANNELS, encode_input, layout_planes};
+use super::model::{ConvImpl, PlumeNet};
+use super::saved::SavedModel;
 use crate::error::{Error, Result};
-use crate::io;
 use crate::io::sha256_hex;
 use crate::layout::Layout;
 use crate::plume::{PlumeBank, PlumeModel};
 
-/// Format tag of `config.json`.
-pub const MODEL_FORMAT: &str = "plumenet-model-v1";
 /// Samples per forward pass in a bank (bounds memory: about 40 MB of activations per sample
 /// chunk of 64 on the default grid).
 pub const BANK_CHUNK: usize = 64;
-
-/// `config.json` of a trained model.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SavedModel {
-    /// Always [`MODEL_FORMAT`].
-    pub format: String,
-    /// Architecture.
-    pub architecture: PlumeNetConfig,
-    /// Grid `[H, W]` the model was trained for.
-    pub grid: [usize; 2],
-    /// Cell size (m) of that grid.
-    pub cell_m: f64,
-    /// Source encoding of the inputs.
-    pub encoding: SourceEncoding,
-    /// Input and target scales.
-    pub normalization: Normalization,
-    /// SHA-256 of the training dataset's `manifest.json`.
-    pub dataset_digest: String,
-    /// The training configuration.
-    pub training: TrainingConfig,
-    /// Losses per epoch, and the best (kept) epoch.
-    pub history: Vec<super::training::EpochLoss>,
-    /// The kept epoch.
-    pub best: Option<super::training::EpochLoss>,
-    /// SHA-256 of `weights.bpk`.
-    pub weights_digest: String,
-}
-
-impl SavedModel {
-    /// The description of a model trained with `config` on `data`, as of `state`.
-    pub fn new(config: &TrainingConfig, data: &TrainingData, state: &TrainState) -> Self {
-        Self {
-            format: MODEL_FORMAT.into(),
-            architecture: config.model.clone(),
-            grid: data.grid(),
-            cell_m: data.cell(),
-            encoding: config.encoding,
-            normalization: config.normalization,
-            dataset_digest: data.digest.clone(),
-            training: config.clone(),
-            history: state.history.clone(),
-            best: state.best,
-            weights_digest: String::new(),
-        }
-    }
-
-    /// Writes `weights.bpk` then `config.json` (both atomically) into `dir`.
-    ///
-    /// # Errors
-    /// [`Error::Io`] when `dir` is not writable, [`Error::Model`] when serialisation fails.
-    pub fn write(mut self, dir: &Path, net: &PlumeNet) -> Result<()> {
-        let bytes = weights_bytes(net)?;
-        self.weights_digest = sha256_hex(&bytes);
-        io::write_atomic(&dir.join("weights.bpk"), |b| {
-            b.extend_from_slice(&bytes);
-            Ok(())
-        })?;
-        io::write_json(&dir.join("config.json"), &self)
-    }
-}
-
-/// Serialises a network's parameters to burnpack bytes.
-///
-/// # Errors
-/// [`Error::Model`] when Burn cannot serialise the record.
-pub fn weights_bytes(net: &PlumeNet) -> Result<Vec<u8>> {
-    let bytes = net
-        .clone()
-        .into_record()
-        .into_bytes()
-        .map_err(|e| Error::Model(format!("cannot serialise weights: {e:?}")))?;
-    Ok(bytes.to_vec())
-}
-
-/// Loads burnpack weights into a network of the matching architecture.
-///
-/// # Errors
-/// [`Error::Io`] when unreadable, [`Error::Model`] for a truncated, foreign or mismatched file.
-pub fn load_weights(net: PlumeNet, path: &Path) -> Result<PlumeNet> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
-        action: "cannot read",
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let record =
-        ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes)).map_err(|e| {
-            Error::Model(format!(
-                "{} is not a PlumeNet weights file: {e:?}",
-                path.display()
-            ))
-        })?;
-    net.try_load_record(record).map_err(|e| {
-        Error::Model(format!(
-            "{} does not fit this architecture: {e:?}",
-            path.display()
-        ))
-    })
-}
 
 /// A loaded PlumeNet ready for inference.
 #[derive(Debug)]
@@ -134,35 +27,15 @@ pub struct Surrogate {
 }
 
 impl Surrogate {
-    /// Loads `dir/config.json` and `dir/weights.bpk`, checking format and weights digest.
+    /// Loads `dir/config.json` and `dir/weights.bpk` ([`SavedModel::load`]).
     ///
     /// # Errors
     /// [`Error::Io`]/[`Error::Json`] for missing or malformed files, [`Error::Model`] for another
     /// format, a weights file that does not match its digest (truncated or replaced) or does not
     /// fit the architecture.
     pub fn load(dir: &Path) -> Result<Self> {
-        let saved: SavedModel = io::read_json(&dir.join("config.json"))?;
-        if saved.format != MODEL_FORMAT {
-            return Err(Error::Model(format!(
-                "{}: format {:?} is not {MODEL_FORMAT}",
-                dir.display(),
-                saved.format
-            )));
-        }
-        let weights = dir.join("weights.bpk");
-        let bytes = std::fs::read(&weights).map_err(|source| Error::Io {
-            action: "cannot read",
-            path: weights.clone(),
-            source,
-        })?;
-        if sha256_hex(&bytes) != saved.weights_digest {
-            return Err(Error::Model(format!(
-                "{} does not match the digest in config.json (truncated or replaced)",
-                weights.display()
-            )));
-        }
         let device = super::backend::device();
-        let net = load_weights(saved.architecture.init(&device), &weights)?;
+        let (saved, net) = SavedModel::load(dir, &device)?;
         Ok(Self {
             net,
             saved,

@@ -5,14 +5,18 @@
 
 pub mod backend;
 pub mod bench;
+pub mod config;
 pub mod conv;
 pub mod data;
 pub mod eval;
 pub mod inference;
 pub mod model;
+pub mod saved;
 pub mod training;
 
+pub use config::TrainingConfig;
 pub use data::{Normalization, SourceEncoding, TrainingData};
-pub use inference::{SavedModel, Surrogate};
+pub use inference::Surrogate;
 pub use model::{PlumeNet, PlumeNetConfig};
-pub use training::{TrainEvent, TrainingConfig, train};
+pub use saved::SavedModel;
+pub use training::{TrainEvent, train};

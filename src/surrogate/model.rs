@@ -7,12 +7,14 @@
 //! with no activation. Inputs whose sides are not multiples of `2^(levels - 1)` are padded with
 //! zeros and the output is cropped back, so any grid works.
 
-use burn::module::Module;
-use burn::nn::PaddingConfig2d;
+use burn::module::{Module, Param};
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
+use burn::nn::{Initializer, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::relu as relu_activation;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 use super::conv::conv2d_same;
 
@@ -59,6 +61,20 @@ fn same_conv(conv: &Conv2d, x: Tensor<4>, relu: bool, imp: ConvImpl) -> Tensor<4
     }
 }
 
+/// A parameter of `shape` uniform in `+-1 / sqrt(fan_in)`, drawn from `rng`.
+fn uniform<const D: usize>(
+    rng: &mut ChaCha8Rng,
+    shape: [usize; D],
+    fan_in: usize,
+    device: &Device,
+) -> Param<Tensor<D>> {
+    let bound = 1.0 / (fan_in as f32).sqrt();
+    let values: Vec<f32> = (0..shape.iter().product())
+        .map(|_| rng.random_range(-bound..bound))
+        .collect();
+    Param::from_tensor(Tensor::from_data(TensorData::new(values, shape), device))
+}
+
 /// A block of convolutions with ReLU.
 #[derive(Module, Debug)]
 pub struct ConvBlock {
@@ -71,6 +87,7 @@ impl ConvBlock {
             .map(|k| {
                 Conv2dConfig::new([if k == 0 { cin } else { cout }, cout], [kernel, kernel])
                     .with_padding(PaddingConfig2d::Same)
+                    .with_initializer(Initializer::Zeros)
                     .init(device)
             })
             .collect();
@@ -95,31 +112,40 @@ pub struct PlumeNet {
     head: Conv2d,
 }
 
-/// Burn's random generator is global to the backend: seeding and then drawing the initial
-/// weights must not interleave with another thread's initialisation.
-static INIT_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
 impl PlumeNetConfig {
-    /// Builds the network with weights drawn from a generator seeded with `seed`, so the same
-    /// seed gives the same network even while other threads initialise networks too.
+    /// Builds the network with weights drawn from a ChaCha8 stream seeded with `seed`, from
+    /// Burn's default distributions: every weight and bias uniform in `+-1 / sqrt(fan_in)`, with
+    /// `fan_in` the input channels times the kernel area (the output channels times the kernel
+    /// area for the transposed convolutions). The same seed gives the same network on any
+    /// thread, whatever other networks are initialised meanwhile.
     pub fn init_seeded(&self, device: &Device, seed: u64) -> PlumeNet {
-        let _guard = INIT_LOCK
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        device.seed(seed);
-        self.init_unlocked(device)
+        let mut net = self.init(device);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut draw_conv = |conv: &mut Conv2d| {
+            let [cout, cin, kh, kw] = conv.weight.dims();
+            let fan_in = cin * kh * kw;
+            conv.weight = uniform(&mut rng, [cout, cin, kh, kw], fan_in, device);
+            conv.bias = Some(uniform(&mut rng, [cout], fan_in, device));
+        };
+        for block in net.encoders.iter_mut() {
+            block.convs.iter_mut().for_each(&mut draw_conv);
+        }
+        for block in net.decoders.iter_mut() {
+            block.convs.iter_mut().for_each(&mut draw_conv);
+        }
+        draw_conv(&mut net.head);
+        for up in net.ups.iter_mut() {
+            let [cin, cout, kh, kw] = up.weight.dims();
+            let fan_in = cout * kh * kw;
+            up.weight = uniform(&mut rng, [cin, cout, kh, kw], fan_in, device);
+            up.bias = Some(uniform(&mut rng, [cout], fan_in, device));
+        }
+        net
     }
 
-    /// Builds the network with freshly initialised weights on `device` (weights to be replaced
-    /// by a loaded record).
+    /// Builds the network with zero weights on `device` (to be replaced by a loaded record or
+    /// by [`PlumeNetConfig::init_seeded`]).
     pub fn init(&self, device: &Device) -> PlumeNet {
-        let _guard = INIT_LOCK
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        self.init_unlocked(device)
-    }
-
-    fn init_unlocked(&self, device: &Device) -> PlumeNet {
         let k = self.kernel_size;
         let n = self.convs_per_level;
         let f = &self.filters;
@@ -142,6 +168,7 @@ impl PlumeNetConfig {
             .map(|l| {
                 ConvTranspose2dConfig::new([f[l + 1], f[l]], [2, 2])
                     .with_stride([2, 2])
+                    .with_initializer(Initializer::Zeros)
                     .init(device)
             })
             .collect();
@@ -154,7 +181,9 @@ impl PlumeNetConfig {
             pool: MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init(),
             ups,
             decoders,
-            head: Conv2dConfig::new([f[0], 1], [1, 1]).init(device),
+            head: Conv2dConfig::new([f[0], 1], [1, 1])
+                .with_initializer(Initializer::Zeros)
+                .init(device),
         }
     }
 }
