@@ -13,7 +13,8 @@ use plumenet::bench::median;
 use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::surrogate::bench::{
-    cpu_peak, export_reference, forward_macs, time_bank, time_training,
+    conv_layers, cpu_peak, export_reference, forward_macs, time_bank, time_conv_layer,
+    time_training,
 };
 use plumenet::surrogate::conv::kernel::Isa;
 use plumenet::surrogate::model::ConvImpl;
@@ -53,6 +54,10 @@ pub struct BenchNetArgs {
     /// Skip Burn's own convolutions (the path before ours).
     #[arg(long)]
     no_burn_conv: bool,
+    /// Also time every convolution shape of the network alone (batch `--batch`), ours and
+    /// Burn's, forward and forward + backward.
+    #[arg(long)]
+    layers: bool,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -86,6 +91,37 @@ fn reference(python: &Path, dir: &Path, args: &[&str]) -> Result<Value> {
 struct Side {
     bank: Vec<f64>,
     train: Vec<f64>,
+}
+
+/// Times each convolution shape of the network alone and prints its GFLOP/s, ours and Burn's.
+fn layer_profile(model: &Surrogate, batch: usize, peak: Option<f64>) -> Value {
+    let saved = model.saved();
+    println!("convolution layers (batch {batch}, with ReLU; GFLOP/s, % of peak for ours):");
+    let mut rows = Vec::new();
+    for (shape, count) in conv_layers(&saved.architecture, saved.grid, batch) {
+        let flop = 2.0 * shape.macs() as f64;
+        let (of, ot) = time_conv_layer(shape, ConvImpl::Own, 5);
+        let (bf, bt) = time_conv_layer(shape, ConvImpl::Burn, 3);
+        let pct = |g: f64| peak.map_or(String::new(), |p| format!(" ({:.0}%)", 100.0 * g / p));
+        let (ours_fwd, ours_step) = (flop / of / 1e9, 3.0 * flop / ot / 1e9);
+        println!(
+            "  {:>2} -> {:>2} channels, {:>3} x {:<3} (x{count}): forward ours {ours_fwd:5.1}{}, burn {:5.1}; forward + backward ours {ours_step:5.1}{}, burn {:5.1}",
+            shape.cin,
+            shape.cout,
+            shape.h,
+            shape.w,
+            pct(ours_fwd),
+            flop / bf / 1e9,
+            pct(ours_step),
+            3.0 * flop / bt / 1e9,
+        );
+        rows.push(json!({
+            "cin": shape.cin, "cout": shape.cout, "h": shape.h, "w": shape.w, "k": shape.k,
+            "count": count, "ours_forward_s": of, "ours_step_s": ot,
+            "burn_forward_s": bf, "burn_step_s": bt,
+        }));
+    }
+    Value::Array(rows)
 }
 
 /// Runs `bench-net`.
@@ -271,6 +307,9 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         },
     );
     report["ratios"] = Value::Object(ratios);
+    if a.layers {
+        report["layers"] = layer_profile(&model, a.batch, peak_gflops);
+    }
     report["identity"] = identity;
     if let Some(path) = &a.json {
         io::write_json(path, &report)?;

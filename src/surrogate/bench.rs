@@ -15,7 +15,12 @@ use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
 use ndarray::{ArrayD, IxDyn};
 
+use burn::backend::ops::ConvOptions;
+use burn::tensor::activation::relu;
+
 use super::config::TrainingConfig;
+use super::conv::conv2d_same;
+use super::conv::kernel::ConvShape;
 use super::data::INPUT_CHANNELS;
 use super::inference::Surrogate;
 use super::model::{ConvImpl, PlumeNetConfig};
@@ -159,6 +164,102 @@ pub fn time_training(
         net = optim.step(defaults.learning_rate, net, grads);
     }
     Ok(start.elapsed().as_secs_f64() / steps as f64)
+}
+
+/// The distinct "same" convolutions of `config` on an `[h, w]` grid with `batch` images, each
+/// with the number of layers of that shape, shallow to deep.
+pub fn conv_layers(
+    config: &PlumeNetConfig,
+    [h, w]: [usize; 2],
+    batch: usize,
+) -> Vec<(ConvShape, usize)> {
+    let f = &config.filters;
+    let k = config.kernel_size;
+    // The network pads the grid to a multiple of 2^(levels - 1), then halves it per level.
+    let multiple = 1 << (f.len() - 1);
+    let shape = |level: usize, cin: usize, cout: usize| ConvShape {
+        batch,
+        cin,
+        cout,
+        h: (h.div_ceil(multiple) * multiple) >> level,
+        w: (w.div_ceil(multiple) * multiple) >> level,
+        k,
+    };
+    let mut layers: Vec<(ConvShape, usize)> = Vec::new();
+    let mut add = |s: ConvShape| match layers.iter_mut().find(|(t, _)| *t == s) {
+        Some((_, n)) => *n += 1,
+        None => layers.push((s, 1)),
+    };
+    for (l, &c) in f.iter().enumerate() {
+        add(shape(
+            l,
+            if l == 0 { config.in_channels } else { f[l - 1] },
+            c,
+        ));
+        (1..config.convs_per_level).for_each(|_| add(shape(l, c, c)));
+    }
+    for l in (0..f.len() - 1).rev() {
+        add(shape(l, 2 * f[l], f[l]));
+        (1..config.convs_per_level).for_each(|_| add(shape(l, f[l], f[l])));
+    }
+    layers
+}
+
+/// Seconds of one convolution + ReLU of `shape` (random operands) on the training device:
+/// the forward pass alone, and the forward and backward passes together (gradients of the
+/// input, the weights and the bias), each the median of `repeats` after one warm-up, with our
+/// convolution or Burn's.
+pub fn time_conv_layer(shape: ConvShape, imp: ConvImpl, repeats: usize) -> (f64, f64) {
+    let device = super::backend::device().autodiff();
+    let ConvShape {
+        batch,
+        cin,
+        cout,
+        h,
+        w,
+        k,
+    } = shape;
+    let random = |dims: [usize; 4]| {
+        Tensor::<4>::random(
+            dims,
+            burn::tensor::Distribution::Uniform(-1.0, 1.0),
+            &device,
+        )
+    };
+    let (x, weight, r) = (
+        random([batch, cin, h, w]).require_grad(),
+        random([cout, cin, k, k]).require_grad(),
+        random([batch, cout, h, w]),
+    );
+    let bias = Tensor::<1>::zeros([cout], &device).require_grad();
+    let run = |backward: bool| {
+        let out = match imp {
+            ConvImpl::Own => conv2d_same(x.clone(), weight.clone(), bias.clone(), true),
+            ConvImpl::Burn => relu(burn::tensor::module::conv2d(
+                x.clone(),
+                weight.clone(),
+                Some(bias.clone()),
+                ConvOptions::new([1, 1], [k / 2, k / 2], [1, 1], 1),
+            )),
+        };
+        if backward {
+            std::hint::black_box((out * r.clone()).sum().backward());
+        } else {
+            std::hint::black_box(out.into_data());
+        }
+    };
+    let time = |backward: bool| {
+        run(backward);
+        let times = (0..repeats.max(1))
+            .map(|_| {
+                let start = Instant::now();
+                run(backward);
+                start.elapsed().as_secs_f64()
+            })
+            .collect();
+        crate::bench::median(times)
+    };
+    (time(false), time(true))
 }
 
 /// An estimate of the machine's peak single-precision rate.

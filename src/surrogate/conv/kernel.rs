@@ -67,6 +67,13 @@ impl ConvShape {
             && self.w > 0
     }
 
+    /// Panics unless the kernels take this shape and `x` and `w` hold its input and weights.
+    fn check(&self, x: &[f32], w: &[f32]) {
+        assert!(self.supported(), "unsupported convolution {self:?}");
+        assert_eq!(x.len(), self.batch * self.cin * self.h * self.w);
+        assert_eq!(w.len(), self.cout * self.cin * self.k * self.k);
+    }
+
     fn frame(&self) -> Frame {
         let p = self.k / 2;
         let wp = self.w + 2 * p;
@@ -446,17 +453,14 @@ pub fn forward(
     bias: Option<&[f32]>,
     relu: bool,
 ) -> Vec<f32> {
+    shape.check(x, w);
     let ConvShape {
         batch,
         cin,
         cout,
-        h,
-        w: width,
         k,
+        ..
     } = shape;
-    assert!(shape.supported(), "unsupported convolution {shape:?}");
-    assert_eq!(x.len(), batch * cin * h * width);
-    assert_eq!(w.len(), cout * cin * k * k);
     assert!(bias.is_none_or(|b| b.len() == cout));
     let frame = shape.frame();
     let packed = pack(w, [cout, cin, k], isa.cob(), false, cin);
@@ -498,6 +502,7 @@ pub fn backward(
     grad: &[f32],
     need_x: bool,
 ) -> ConvGrads {
+    shape.check(x, w);
     let ConvShape {
         batch,
         cin,
@@ -506,9 +511,6 @@ pub fn backward(
         w: width,
         k,
     } = shape;
-    assert!(shape.supported(), "unsupported convolution {shape:?}");
-    assert_eq!(x.len(), batch * cin * h * width);
-    assert_eq!(w.len(), cout * cin * k * k);
     assert_eq!(grad.len(), batch * cout * h * width);
     assert!(relu_out.is_none_or(|o| o.len() == grad.len()));
     let frame = shape.frame();
