@@ -1,8 +1,10 @@
 //! Arena layouts: the JSON contract, validation, the occupancy grid and the signed distance.
 //!
 //! A layout is a rectangle `width_m x height_m` discretised into square cells of `cell_m`,
-//! with wind entering at `x = 0` along `+x` and leaving at `x = width_m`, side walls at
-//! `y = 0` and `y = height_m`, and axis-aligned rectangular obstacles. Arrays over the grid have
+//! with axis-aligned rectangular obstacles and wind entering through the whole wall it comes
+//! from (`west` by default: at `x = 0` along `+x`, leaving at `x = width_m`, side walls at
+//! `y = 0` and `y = height_m`; `y` points north). The solvers work in the canonical frame where
+//! the wind comes from the west ([`crate::frame`]). Arrays over the grid have
 //! shape `[ny, nx]`: row `j` is the `y` index, column `i` the `x` index, and cell `(j, i)` has its
 //! centre at `((i + 0.5) * cell_m, (j + 0.5) * cell_m)`. A cell is solid when its centre lies
 //! inside (or on the edge of) an obstacle.
@@ -14,6 +16,7 @@ use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::io;
 
 /// Default effective (turbulent) diffusivity of the gas in m^2/s.
@@ -29,12 +32,65 @@ pub const DEFAULT_EDDY_VISCOSITY_M2PS: f64 = 0.05;
 /// Smallest number of cells allowed along each side of the grid.
 pub const MIN_CELLS: usize = 4;
 
+/// The wall the wind comes from (`y` points north).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WindFrom {
+    /// Inlet at `x = 0`, wind along `+x` (the default).
+    #[default]
+    West,
+    /// Inlet at `x = width`, wind along `-x`.
+    East,
+    /// Inlet at `y = 0`, wind along `+y`.
+    South,
+    /// Inlet at `y = height`, wind along `-y`.
+    North,
+}
+
+impl WindFrom {
+    /// Every direction, in the order of the JSON contract.
+    pub const ALL: [WindFrom; 4] = [
+        WindFrom::West,
+        WindFrom::East,
+        WindFrom::South,
+        WindFrom::North,
+    ];
+
+    /// Whether this is the default (omitted from JSON, so old files stay byte-identical).
+    pub fn is_west(&self) -> bool {
+        *self == WindFrom::West
+    }
+
+    /// Unit vector the wind blows along.
+    pub fn downwind(&self) -> [f64; 2] {
+        match self {
+            WindFrom::West => [1.0, 0.0],
+            WindFrom::East => [-1.0, 0.0],
+            WindFrom::South => [0.0, 1.0],
+            WindFrom::North => [0.0, -1.0],
+        }
+    }
+
+    /// The JSON name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            WindFrom::West => "west",
+            WindFrom::East => "east",
+            WindFrom::South => "south",
+            WindFrom::North => "north",
+        }
+    }
+}
+
 /// Inlet wind.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Wind {
-    /// Uniform inlet speed along `+x`, in m/s.
+    /// Uniform inlet speed, in m/s.
     pub speed_mps: f64,
+    /// The wall the wind enters through (`west` when omitted).
+    #[serde(default, skip_serializing_if = "WindFrom::is_west")]
+    pub from: WindFrom,
 }
 
 /// An axis-aligned rectangular obstacle, in metres.
@@ -70,9 +126,9 @@ impl Obstacle {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LayoutSpec {
-    /// Arena length along the wind, in metres.
+    /// Arena side along `x` (west to east), in metres.
     pub width_m: f64,
-    /// Arena width across the wind, in metres.
+    /// Arena side along `y` (south to north), in metres.
     pub height_m: f64,
     /// Grid cell size, in metres; must divide both sides.
     pub cell_m: f64,
@@ -170,7 +226,7 @@ impl LayoutSpec {
                 ));
             }
         }
-        check_connectivity(&solid, self.cell_m)?;
+        check_connectivity(&solid, self.cell_m, self.wind.from)?;
         Ok(Layout {
             spec: self,
             nx,
@@ -193,8 +249,16 @@ fn cell_centre(cell: f64, i: usize, j: usize) -> (f64, f64) {
     ((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell)
 }
 
-/// Every free cell must be reachable from a free inlet cell, and some free outlet cell must be.
-fn check_connectivity(solid: &Array2<bool>, cell: f64) -> Result<()> {
+/// Every free cell must be reachable from a free inlet cell, and some free outlet cell must be
+/// (checked in the canonical frame, where the inlet is the first column).
+fn check_connectivity(real: &Array2<bool>, cell: f64, from: WindFrom) -> Result<()> {
+    let (ny_real, nx_real) = real.dim();
+    let frame = Frame::new(
+        from,
+        [nx_real as f64 * cell, ny_real as f64 * cell],
+        [nx_real, ny_real],
+    );
+    let solid = frame.cells_to_canonical(real.view());
     let (ny, nx) = solid.dim();
     let mut seen = Array2::from_elem((ny, nx), false);
     let mut queue: VecDeque<(usize, usize)> = (0..ny)
@@ -219,15 +283,17 @@ fn check_connectivity(solid: &Array2<bool>, cell: f64) -> Result<()> {
         }
     }
     if !(0..ny).any(|j| seen[[j, nx - 1]]) {
-        return Err(Error::Layout(
-            "obstacles block the channel: no free path from the inlet (x = 0) to the outlet".into(),
-        ));
+        return Err(Error::Layout(format!(
+            "obstacles block the channel: no free path from the inlet (the {} wall) to the outlet",
+            from.name()
+        )));
     }
     if let Some(((j, i), _)) = solid
         .indexed_iter()
         .find(|&((j, i), &s)| !s && !seen[[j, i]])
     {
-        let (x, y) = cell_centre(cell, i, j);
+        let (xc, yc) = cell_centre(cell, i, j);
+        let (x, y) = frame.from_canonical(xc, yc);
         return Err(Error::Layout(format!(
             "the free cell at ({x}, {y}) is enclosed by obstacles; \
              no air or gas can reach it (extend an obstacle to fill the pocket)"
@@ -378,6 +444,11 @@ impl Layout {
         Ok(())
     }
 
+    /// The wall the wind comes from.
+    pub fn wind_from(&self) -> WindFrom {
+        self.spec.wind.from
+    }
+
     /// Distance (m) from a point to the nearest of the arena's four edges (walls, inlet, outlet).
     pub fn edge_distance(&self, x: f64, y: f64) -> f64 {
         x.min(y).min(self.width() - x).min(self.height() - y)
@@ -394,11 +465,16 @@ impl Layout {
     }
 
     /// Signed distance (m) from each cell centre to the nearest solid surface (obstacles and the
-    /// side walls), negative inside obstacles. Shape `[ny, nx]`.
+    /// side walls, the two walls along the wind), negative inside obstacles. Shape `[ny, nx]`.
     pub fn signed_distance(&self) -> Array2<f64> {
+        let across_y = self.wind_from().downwind()[0] != 0.0;
         Array2::from_shape_fn((self.ny, self.nx), |(j, i)| {
             let (x, y) = self.cell_centre(j, i);
-            let wall = y.min(self.height() - y);
+            let wall = if across_y {
+                y.min(self.height() - y)
+            } else {
+                x.min(self.width() - x)
+            };
             self.spec
                 .obstacles
                 .iter()

@@ -16,7 +16,8 @@
 //! STE: features --> likelihood --> posterior --> planner --> ...         ste
 //! ```
 //!
-//! Modules own one box each: [`layout`] (arena, obstacles, validation), [`physics`] (wind,
+//! Modules own one box each: [`layout`] (arena, obstacles, validation), [`frame`] (the arena
+//! turned so that the wind comes from the west, where the solvers work), [`physics`] (wind,
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
 //! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (PNG
@@ -27,6 +28,7 @@
 pub mod bench;
 pub mod dataset;
 pub mod error;
+pub mod frame;
 pub mod io;
 pub mod layout;
 pub mod physics;

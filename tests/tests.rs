@@ -6,6 +6,7 @@ mod cli;
 mod conv;
 mod dataset;
 mod filament;
+mod frame;
 mod layout;
 mod ste;
 mod surrogate;

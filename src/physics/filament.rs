@@ -27,6 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::layout::Layout;
 use crate::physics::wind::WindField;
 
@@ -64,10 +65,14 @@ struct Filament {
     age: f64,
 }
 
-/// A running filament plume.
+/// A running filament plume. It runs in the layout's canonical frame ([`crate::frame`]), where
+/// the inlet is the west wall; positions are turned in and out of it.
 #[derive(Debug, Clone)]
 pub struct FilamentPlume {
+    frame: Frame,
+    /// The canonical layout.
     layout: Layout,
+    /// The canonical wind.
     wind: WindField,
     source: (f64, f64),
     config: FilamentConfig,
@@ -104,10 +109,12 @@ impl FilamentPlume {
                 "bad filament settings {config:?}"
             )));
         }
+        let frame = Frame::of(layout);
         Ok(Self {
-            layout: layout.clone(),
-            wind: wind.clone(),
-            source,
+            frame,
+            layout: frame.layout_to_canonical(layout)?,
+            wind: frame.wind_to_canonical(wind),
+            source: frame.to_canonical(source.0, source.1),
             config,
             filaments: Vec::new(),
             time: 0.0,
@@ -223,6 +230,7 @@ impl FilamentPlume {
 
     /// Instantaneous concentration (units/m^2) at a point; zero inside obstacles.
     pub fn concentration_at(&self, x: f64, y: f64) -> f64 {
+        let (x, y) = self.frame.to_canonical(x, y);
         let (j, i) = self.layout.cell_of(x, y);
         if self.layout.is_solid(j, i) {
             return 0.0;

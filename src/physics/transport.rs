@@ -1,6 +1,10 @@
 //! Steady advection-diffusion of a point source on the layout's wind: the mean concentration
 //! field, and the bank of fields for many sources.
 //!
+//! The operator is assembled in the layout's canonical frame ([`crate::frame`]: inlet at the
+//! first column), and sources and fields are turned in and out of it, so every wind direction
+//! shares one discretisation.
+//!
 //! **Equation.** `div(u c) - D lap(c) = q delta(x - x_s)` in free cells, with `q = 1` unit/s (per
 //! unit depth), so `c` is in units per m^2. Zero flux through the side walls and obstacle faces;
 //! `c = 0` on the inlet face (diffusive loss through the inlet is kept, it is tiny); pure
@@ -29,6 +33,7 @@ use ndarray::{Array2, Array3, Axis};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::layout::Layout;
 use crate::physics::scheme::Scheme;
 use crate::physics::sparse::{SparseLu, Workload, assemble};
@@ -49,7 +54,13 @@ pub struct Transport {
     outlet: Vec<(usize, f64)>,
     lu: SparseLu,
     matrix: SparseColMat<usize, f64>,
+    /// The layout as given (sources are checked against it).
     layout: Layout,
+    /// The canonical frame the operator is assembled in; `shape`, `index` and `outlet` are
+    /// canonical.
+    frame: Frame,
+    /// The layout turned into that frame.
+    canonical: Layout,
 }
 
 impl Transport {
@@ -66,15 +77,18 @@ impl Transport {
     /// # Errors
     /// [`Error::Solver`] when the matrix is singular; [`Error::Parameter`] when the wind was
     /// solved on another grid.
-    pub fn with_scheme(layout: &Layout, wind: &WindField, scheme: Scheme) -> Result<Self> {
-        let (ny, nx) = layout.shape();
-        if wind.shape() != (ny, nx) {
+    pub fn with_scheme(real: &Layout, real_wind: &WindField, scheme: Scheme) -> Result<Self> {
+        if real_wind.shape() != real.shape() {
             return Err(Error::Parameter(format!(
                 "wind grid {:?} does not match layout grid {:?}",
-                wind.shape(),
-                (ny, nx)
+                real_wind.shape(),
+                real.shape()
             )));
         }
+        let frame = Frame::of(real);
+        let layout = frame.layout_to_canonical(real)?;
+        let wind = &frame.wind_to_canonical(real_wind);
+        let (ny, nx) = layout.shape();
         let (index, n) = layout.free_cell_index();
         let h = layout.cell();
         let d = layout.diffusivity();
@@ -131,7 +145,9 @@ impl Transport {
             outlet,
             lu,
             matrix,
-            layout: layout.clone(),
+            layout: real.clone(),
+            frame,
+            canonical: layout,
         })
     }
 
@@ -151,6 +167,7 @@ impl Transport {
     /// [`Error::Source`] when the position is not in free space.
     pub fn source_weights(&self, x: f64, y: f64) -> Result<Vec<(usize, f64)>> {
         self.layout.check_source(x, y)?;
+        let (x, y) = self.frame.to_canonical(x, y);
         let (ny, nx) = self.shape;
         let fx = (x / self.cell - 0.5).clamp(0.0, (nx - 1) as f64);
         let fy = (y / self.cell - 0.5).clamp(0.0, (ny - 1) as f64);
@@ -172,7 +189,7 @@ impl Transport {
         let total: f64 = weights.iter().map(|w| w.1).sum();
         if total <= 0.0 {
             // The containing cell is free (checked above), so put the source there.
-            let (j, i) = self.layout.cell_of(x, y);
+            let (j, i) = self.canonical.cell_of(x, y);
             return Ok(vec![(self.index[[j, i]], 1.0)]);
         }
         Ok(weights.into_iter().map(|(k, w)| (k, w / total)).collect())
@@ -197,7 +214,7 @@ impl Transport {
             .iter()
             .map(|&[x, y]| self.source_weights(x, y))
             .collect::<Result<_>>()?;
-        let (ny, nx) = self.shape;
+        let (ny, nx) = self.layout.shape();
         let mut out = Array3::<f32>::zeros((sources.len(), ny, nx));
         let n = self.unknowns();
         out.axis_chunks_iter_mut(Axis(0), BANK_BLOCK)
@@ -213,7 +230,7 @@ impl Transport {
                 self.solve_unknowns(&mut rhs);
                 for (col, mut field) in block.outer_iter_mut().enumerate() {
                     for ((j, i), value) in field.indexed_iter_mut() {
-                        let k = self.index[[j, i]];
+                        let k = self.index[self.frame.cell_to_canonical(j, i)];
                         if k != usize::MAX {
                             *value = rhs[(k, col)] as f32;
                         }
@@ -231,6 +248,7 @@ impl Transport {
 
     /// Gas flux (units/s) leaving through the outlet for a field of this layout.
     pub fn outlet_flux(&self, field: &Array2<f64>) -> f64 {
+        let field = self.frame.cells_to_canonical(field.view());
         let last = self.shape.1 - 1;
         self.outlet.iter().map(|&(j, f)| f * field[[j, last]]).sum()
     }

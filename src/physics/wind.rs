@@ -4,7 +4,9 @@
 //! viscosity `nu` (see [`crate::layout::DEFAULT_EDDY_VISCOSITY_M2PS`]), whose steady state exists
 //! for the obstacle Reynolds numbers of an indoor arena.
 //!
-//! **Boundary conditions.** Uniform inlet `u = U, v = 0` at `x = 0`; outflow at `x = width`
+//! **Boundary conditions** (in the canonical frame, [`crate::frame`]: a layout whose wind comes
+//! from another wall is solved turned and the field turned back). Uniform inlet `u = U, v = 0`
+//! at `x = 0`; outflow at `x = width`
 //! (zero normal gradient of the velocity, pressure 0); free-slip side walls (`v = 0`,
 //! `du/dy = 0`), so an empty arena gives exactly uniform wind; no-slip, no-through-flow
 //! obstacles.
@@ -37,6 +39,7 @@
 use ndarray::{Array2, Array3, Axis};
 
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::layout::Layout;
 use crate::physics::scheme::Scheme;
 use crate::physics::sparse::{SparseLu, Workload, assemble};
@@ -316,6 +319,11 @@ impl WindField {
     /// [`Error::Solver`] when the pressure matrix is singular or the iteration does not converge
     /// within `config.max_steps`; [`Error::Parameter`] for a bad configuration.
     pub fn solve_with(layout: &Layout, config: &WindConfig) -> Result<Self> {
+        let frame = Frame::of(layout);
+        if !frame.is_identity() {
+            let canonical = Self::solve_with(&frame.layout_to_canonical(layout)?, config)?;
+            return Ok(frame.wind_from_canonical(&canonical));
+        }
         if !(config.tolerance > 0.0 && config.courant > 0.0) {
             return Err(Error::Parameter(format!(
                 "bad wind solver settings {config:?}"

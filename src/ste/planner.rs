@@ -75,6 +75,7 @@ const MIN_GOAL_M: f64 = 1.0;
 const ITERATION_COST_M: f64 = 2.0;
 const LATTICE_M: f64 = 1.0;
 const DISTANCE_WEIGHT: f64 = 0.5;
+/// Goals around a centroid, `[downwind, across]` in metres (turned by the wind's direction).
 const GOAL_OFFSETS: [[f64; 2]; 9] = [
     [0.0, 0.0],
     [-1.0, 0.0],
@@ -170,11 +171,16 @@ impl Planner {
             .map(|&k| (est.candidates()[k], est.posterior()[k]))
             .collect();
         let centroids = self.kmeans(&pts);
+        let layout = est.sampler().layout();
+        let [dx, dy] = layout.wind_from().downwind();
         let mut goals: Vec<[f64; 2]> = centroids
             .iter()
-            .flat_map(|c| GOAL_OFFSETS.iter().map(move |o| [c[0] + o[0], c[1] + o[1]]))
+            .flat_map(|c| {
+                GOAL_OFFSETS
+                    .iter()
+                    .map(move |[a, b]| [c[0] + a * dx - b * dy, c[1] + a * dy + b * dx])
+            })
             .collect();
-        let layout = est.sampler().layout();
         for _ in 0..EXPLORE_GOALS {
             let x = rand::RngExt::random_range(&mut self.rng, 0.0..layout.width());
             let y = rand::RngExt::random_range(&mut self.rng, 0.0..layout.height());

@@ -113,11 +113,12 @@ impl Occupancy {
     /// # Errors
     /// [`Error::Parameter`] when nothing is left free.
     pub fn new(layout: &Layout, inflate_m: f64) -> Result<Self> {
-        let sd = layout.signed_distance();
         let free = Array2::from_shape_fn(layout.shape(), |(j, i)| {
-            let (x, _) = layout.cell_centre(j, i);
-            let ends = x.min(layout.width() - x);
-            sd[[j, i]].min(ends) >= inflate_m && !layout.is_solid(j, i)
+            let (x, y) = layout.cell_centre(j, i);
+            let clearance = layout
+                .obstacle_distance(x, y)
+                .min(layout.edge_distance(x, y));
+            clearance >= inflate_m && !layout.is_solid(j, i)
         });
         if !free.iter().any(|&f| f) {
             return Err(Error::Parameter(format!(

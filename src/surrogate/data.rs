@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::Manifest;
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::io;
 use crate::io::sha256_hex;
 use crate::layout::Layout;
@@ -98,7 +99,9 @@ pub fn layout_planes(layout: &Layout) -> (ndarray::Array2<f32>, ndarray::Array2<
     )
 }
 
-/// A dataset held in memory for training and evaluation.
+/// A dataset held in memory for training and evaluation, in the canonical frame of its base
+/// layout ([`crate::frame`]: turned so that the wind comes from the west, as the network sees
+/// every layout).
 #[derive(Debug, Clone)]
 pub struct TrainingData {
     /// The dataset's manifest.
@@ -113,6 +116,8 @@ pub struct TrainingData {
     pub source_xy: Vec<[f64; 2]>,
     /// Target concentrations `[S, H, W]`.
     pub concentration: Array3<f32>,
+    /// Canonical grid `[H, W]`.
+    grid: [usize; 2],
 }
 
 impl TrainingData {
@@ -148,17 +153,35 @@ impl TrainingData {
                 dir.display()
             )));
         }
+        let base = &manifest.base;
+        let [ny, nx] = manifest.grid;
+        let frame = Frame::new(base.wind.from, [base.width_m, base.height_m], [nx, ny]);
+        let (hc, wc) = frame.canonical_shape();
+        let turn = |a: Array3<f32>| -> Array3<f32> {
+            if frame.is_identity() {
+                return a;
+            }
+            let mut out = Array3::zeros((a.dim().0, hc, wc));
+            for (mut dst, src) in out.outer_iter_mut().zip(a.outer_iter()) {
+                dst.assign(&frame.cells_to_canonical(src));
+            }
+            out
+        };
         Ok(Self {
             digest,
-            masks,
-            sdf,
+            masks: turn(masks),
+            sdf: turn(sdf),
             source_layout: owner.iter().map(|&k| k as usize).collect(),
             source_xy: xy
                 .outer_iter()
-                .map(|r| [f64::from(r[0]), f64::from(r[1])])
+                .map(|r| {
+                    let (x, y) = frame.to_canonical(f64::from(r[0]), f64::from(r[1]));
+                    [x, y]
+                })
                 .collect(),
-            concentration,
+            concentration: turn(concentration),
             manifest,
+            grid: [hc, wc],
         })
     }
 
@@ -172,9 +195,9 @@ impl TrainingData {
         self.source_layout.is_empty()
     }
 
-    /// Grid `[H, W]`.
+    /// Grid `[H, W]` (canonical: the base layout turned so that the wind comes from the west).
     pub fn grid(&self) -> [usize; 2] {
-        self.manifest.grid
+        self.grid
     }
 
     /// Cell size (m).

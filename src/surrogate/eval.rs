@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::data::TrainingData;
 use super::inference::Surrogate;
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::layout::{Layout, LayoutSpec};
 
 /// Accuracy of one map.
@@ -87,7 +88,11 @@ pub fn evaluate(
         .manifest
         .layouts
         .iter()
-        .map(|s: &LayoutSpec| s.clone().check())
+        .map(|s: &LayoutSpec| {
+            // The dataset is held in the canonical frame (see `TrainingData`).
+            let real = s.clone().check()?;
+            Frame::of(&real).layout_to_canonical(&real)
+        })
         .collect::<Result<_>>()?;
     let mut scores = Vec::with_capacity(data.len());
     for (l, layout) in layouts.iter().enumerate() {

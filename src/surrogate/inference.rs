@@ -9,6 +9,7 @@ use super::data::{INPUT_CHANNELS, encode_input, layout_planes};
 use super::model::{ConvImpl, PlumeNet};
 use super::saved::SavedModel;
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::io::sha256_hex;
 use crate::layout::Layout;
 use crate::plume::{PlumeBank, PlumeModel};
@@ -59,10 +60,11 @@ impl Surrogate {
     /// # Errors
     /// [`Error::Model`] naming both grids.
     pub fn check_layout(&self, layout: &Layout) -> Result<()> {
-        let grid = [layout.ny(), layout.nx()];
+        let (ny, nx) = Frame::of(layout).canonical_shape();
+        let grid = [ny, nx];
         if grid != self.saved.grid || (layout.cell() - self.saved.cell_m).abs() > 1e-12 {
             return Err(Error::Model(format!(
-                "model {} was trained for a {:?} grid of {} m cells; the layout has {:?} cells of {} m",
+                "model {} was trained for a {:?} grid of {} m cells; the layout has {:?} cells of {} m (turned so that the wind comes from the west)",
                 self.dir.display(),
                 self.saved.grid,
                 self.saved.cell_m,
@@ -83,17 +85,21 @@ impl Surrogate {
         for &[x, y] in sources {
             layout.check_source(x, y)?;
         }
+        // The network sees the layout turned so that the wind comes from the west.
+        let frame = Frame::of(layout);
+        let canonical = frame.layout_to_canonical(layout)?;
         let plane = layout.nx() * layout.ny();
-        let (mask, sdf) = layout_planes(layout);
+        let (mask, sdf) = layout_planes(&canonical);
         Ok(sources
             .chunks(BANK_CHUNK)
             .map(|chunk| {
                 let mut input = vec![0.0f32; chunk.len() * INPUT_CHANNELS * plane];
-                for (slot, &src) in input.chunks_mut(INPUT_CHANNELS * plane).zip(chunk) {
+                for (slot, &[x, y]) in input.chunks_mut(INPUT_CHANNELS * plane).zip(chunk) {
+                    let (xc, yc) = frame.to_canonical(x, y);
                     encode_input(
                         mask.view(),
                         sdf.view(),
-                        src,
+                        [xc, yc],
                         layout.cell(),
                         self.saved.encoding,
                         &self.saved.normalization,
@@ -158,6 +164,8 @@ impl Surrogate {
         imp: ConvImpl,
     ) -> Result<Array3<f32>> {
         let (h, w) = layout.shape();
+        let frame = Frame::of(layout);
+        let (hc, wc) = frame.canonical_shape();
         let solid = layout.solid();
         let norm = self.saved.normalization;
         let mut out = Array3::<f32>::zeros((sources.len(), h, w));
@@ -166,8 +174,11 @@ impl Surrogate {
             .into_iter()
             .zip(out.axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK))
         {
+            // Canonical outputs `[n, 1, hc, wc]`, turned back cell by cell.
             let values = self.forward_raw_with(input, imp)?;
-            for (((_, j, i), slot), v) in fields.indexed_iter_mut().zip(values) {
+            for ((n, j, i), slot) in fields.indexed_iter_mut() {
+                let (jc, ic) = frame.cell_to_canonical(j, i);
+                let v = values[(n * hc + jc) * wc + ic];
                 *slot = if solid[[j, i]] { 0.0 } else { norm.inverse(v) };
             }
         }
