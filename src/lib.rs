@@ -21,7 +21,7 @@
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
 //! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (PNG
-//! rendering), [`io`] (atomic files), [`bench`] (timings).
+//! rendering), [`io`] (atomic files), [`bench`](mod@bench) (timings).
 
 #![warn(missing_docs)]
 

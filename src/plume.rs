@@ -22,7 +22,7 @@ pub struct PlumeBank {
 
 /// A model that predicts the mean concentration field of a source in a layout.
 pub trait PlumeModel {
-    /// Short name for reports ("solver", "plumenet:<model dir>").
+    /// Short name for reports (`solver`, `plumenet:DIR`).
     fn name(&self) -> String;
 
     /// Identifies the model's predictions (weights and settings) for the bank cache.

@@ -470,7 +470,7 @@ const RANK_TOLERANCE: f64 = 3.0;
 /// Noise levels above the clean-air baseline below which readings tie.
 const CLEAN_AIR_NOISES: f64 = 3.0;
 
-/// Sets every reading within [`CLEAN_AIR_NOISES`] noise levels of the clean-air baseline to the baseline, so
+/// Sets every reading within `CLEAN_AIR_NOISES` noise levels of the clean-air baseline to the baseline, so
 /// that readings of clean air form one tie group, as the plume model's values below the
 /// detection floor do. Calibration-free: the baseline is the 5th percentile of the readings,
 /// and the noise level is estimated from successive differences,

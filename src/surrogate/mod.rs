@@ -1,7 +1,9 @@
 //! PlumeNet, the data-driven plume model (DDPM in the paper: a CNN, not a diffusion model):
-//! architecture ([`model`]), input encoding and batches ([`data`]), training ([`training`]),
-//! loading, prediction and banks ([`inference`]), and throughput against PyTorch ([`bench`]).
-//! Tensors meet ndarray only in [`data`], [`inference`] and [`bench`].
+//! architecture ([`model`]) with its own convolution operation and kernels ([`conv`]), input
+//! encoding and batches ([`data`]), the definition of a training run ([`config`]), training
+//! ([`training`]), the files of a trained model ([`saved`]), loading, prediction and banks
+//! ([`inference`]), accuracy ([`eval`]), and throughput against PyTorch ([`bench`](mod@bench)). Tensors meet
+//! ndarray or plain slices only in [`data`], [`conv`], [`saved`], [`inference`] and [`bench`](mod@bench).
 
 pub mod backend;
 pub mod bench;

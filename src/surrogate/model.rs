@@ -21,7 +21,7 @@ use super::conv::conv2d_same;
 /// Architecture of PlumeNet (saved in `config.json`).
 #[derive(Config, Debug, PartialEq)]
 pub struct PlumeNetConfig {
-    /// Input channels (see [`crate::surrogate::InputEncoding`]).
+    /// Input channels (mask, signed distance and source; see [`crate::surrogate::SourceEncoding`]).
     #[config(default = 3)]
     pub in_channels: usize,
     /// Channels per level, shallow to deep (DeepCFD: `[8, 16, 32, 32]`).
