@@ -231,6 +231,9 @@ impl Frame {
 
     /// The real wind field of a field solved in the canonical frame.
     pub fn wind_from_canonical(&self, c: &WindField) -> WindField {
+        if self.is_identity() {
+            return c.clone();
+        }
         let (nx, ny) = (self.nx, self.ny);
         let pick = |v_face: bool, j: usize, i: usize| {
             let (to_v, idx, sign) = self.face_to_canonical(v_face, j, i);
@@ -246,6 +249,9 @@ impl Frame {
     /// The canonical wind field of a real one (the inverse of
     /// [`Frame::wind_from_canonical`]: every canonical face is the image of one real face).
     pub fn wind_to_canonical(&self, real: &WindField) -> WindField {
+        if self.is_identity() {
+            return real.clone();
+        }
         let (nyc, nxc) = self.canonical_shape();
         let mut out = WindField {
             u: Array2::zeros((nyc, nxc + 1)),

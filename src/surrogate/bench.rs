@@ -15,12 +15,9 @@ use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
 use ndarray::{ArrayD, IxDyn};
 
-use burn::backend::ops::ConvOptions;
-use burn::tensor::activation::relu;
-
 use super::config::TrainingConfig;
-use super::conv::conv2d_same;
 use super::conv::kernel::ConvShape;
+use super::conv::{burn_conv2d_same, conv2d_same};
 use super::data::INPUT_CHANNELS;
 use super::inference::Surrogate;
 use super::model::{ConvImpl, PlumeNetConfig};
@@ -235,12 +232,7 @@ pub fn time_conv_layer(shape: ConvShape, imp: ConvImpl, repeats: usize) -> (f64,
     let run = |backward: bool| {
         let out = match imp {
             ConvImpl::Own => conv2d_same(x.clone(), weight.clone(), bias.clone(), true),
-            ConvImpl::Burn => relu(burn::tensor::module::conv2d(
-                x.clone(),
-                weight.clone(),
-                Some(bias.clone()),
-                ConvOptions::new([1, 1], [k / 2, k / 2], [1, 1], 1),
-            )),
+            ConvImpl::Burn => burn_conv2d_same(x.clone(), weight.clone(), bias.clone(), true),
         };
         if backward {
             std::hint::black_box((out * r.clone()).sum().backward());

@@ -12,11 +12,10 @@ use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfi
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{Initializer, PaddingConfig2d};
 use burn::prelude::*;
-use burn::tensor::activation::relu as relu_activation;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::conv::conv2d_same;
+use super::conv::{burn_conv2d_same, conv2d_same};
 
 /// Architecture of PlumeNet (saved in `config.json`).
 #[derive(Config, Debug, PartialEq)]
@@ -40,24 +39,19 @@ pub struct PlumeNetConfig {
 pub enum ConvImpl {
     /// Our fused kernels ([`conv2d_same`]; Burn's convolution on backends they do not cover).
     Own,
-    /// Burn's `nn::Conv2d` followed by `relu`, as before our kernels (for comparisons).
+    /// Burn's convolution followed by `relu`, as before our kernels (for comparisons).
     Burn,
 }
 
 /// `conv` ("same" padding, stride 1, with bias) applied to `x`, then ReLU if `relu`.
 fn same_conv(conv: &Conv2d, x: Tensor<4>, relu: bool, imp: ConvImpl) -> Tensor<4> {
+    let bias = match &conv.bias {
+        Some(bias) => bias.val(),
+        None => Tensor::zeros([conv.weight.dims()[0]], &x.device()),
+    };
     match imp {
-        ConvImpl::Own => {
-            let bias = match &conv.bias {
-                Some(bias) => bias.val(),
-                None => Tensor::zeros([conv.weight.dims()[0]], &x.device()),
-            };
-            conv2d_same(x, conv.weight.val(), bias, relu)
-        }
-        ConvImpl::Burn => {
-            let out = conv.forward(x);
-            if relu { relu_activation(out) } else { out }
-        }
+        ConvImpl::Own => conv2d_same(x, conv.weight.val(), bias, relu),
+        ConvImpl::Burn => burn_conv2d_same(x, conv.weight.val(), bias, relu),
     }
 }
 

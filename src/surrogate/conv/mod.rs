@@ -49,19 +49,25 @@ pub fn conv2d_same(x: Tensor<4>, weight: Tensor<4>, bias: Tensor<1>, relu: bool)
             relu,
         ))
     } else {
-        let k = weight.dims()[2];
-        let out = burn::tensor::module::conv2d(
-            x,
-            weight,
-            Some(bias),
-            ConvOptions::new([1, 1], [k / 2, k / 2], [1, 1], 1),
-        );
-        if relu {
-            burn::tensor::activation::relu(out)
-        } else {
-            out
-        }
+        burn_conv2d_same(x, weight, bias, relu)
     }
+}
+
+/// [`conv2d_same`] through Burn's own convolution and ReLU, on any backend (the path before our
+/// kernels, kept for the other backends and for comparisons).
+pub fn burn_conv2d_same(x: Tensor<4>, weight: Tensor<4>, bias: Tensor<1>, relu: bool) -> Tensor<4> {
+    let options = same_options(weight.dims()[2]);
+    let out = burn::tensor::module::conv2d(x, weight, Some(bias), options);
+    if relu {
+        burn::tensor::activation::relu(out)
+    } else {
+        out
+    }
+}
+
+/// Stride 1, padding `k / 2`, no dilation, one group: a "same" convolution for odd `k`.
+fn same_options(k: usize) -> ConvOptions<2> {
+    ConvOptions::new([1, 1], [k / 2, k / 2], [1, 1], 1)
 }
 
 /// The f32 values of a Flex tensor in row-major order, with its shape, if it is f32.
@@ -92,13 +98,8 @@ fn shape_of(x: &[usize], weight: &[usize], bias: &[usize]) -> Option<ConvShape> 
 
 /// Flex's own convolution (and ReLU), for what our kernels do not take.
 fn flex_fallback(x: FlexTensor, weight: FlexTensor, bias: FlexTensor, relu: bool) -> FlexTensor {
-    let k = weight.layout().shape()[2];
-    let out = Flex::conv2d(
-        x,
-        weight,
-        Some(bias),
-        ConvOptions::new([1, 1], [k / 2, k / 2], [1, 1], 1),
-    );
+    let options = same_options(weight.layout().shape()[2]);
+    let out = Flex::conv2d(x, weight, Some(bias), options);
     if relu { Flex::relu(out) } else { out }
 }
 
@@ -204,8 +205,7 @@ fn burn_gradients(
         Some(out) => Flex::relu_backward(out.clone(), grad),
         None => grad,
     };
-    let k = state.weight.layout().shape()[2];
-    let options = ConvOptions::new([1, 1], [k / 2, k / 2], [1, 1], 1);
+    let options = same_options(state.weight.layout().shape()[2]);
     let dx = need_x.then(|| {
         Flex::conv2d_x_backward(
             state.x.clone(),
