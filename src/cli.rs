@@ -9,15 +9,16 @@ use indicatif::{ProgressBar, ProgressStyle};
 use ndarray::{Array2, Axis};
 use serde_json::json;
 
-use plumenet::dataset::{self, GenerateConfig, GenerateParams, Shard};
+use plumenet::dataset::{self, Distribution, GenerateConfig, GenerateParams, RoomParams, Shard};
+use plumenet::frame::Frame;
 use plumenet::layout::Layout;
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::{FieldPlot, render_field, save_png};
-use plumenet::surrogate::data::SourceEncoding;
-use plumenet::surrogate::eval::evaluate;
-use plumenet::surrogate::{Surrogate, TrainEvent, TrainingConfig, TrainingData};
+use plumenet::surrogate::data::{InputSet, SourceEncoding};
+use plumenet::surrogate::eval::{Summary, evaluate};
+use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
 use plumenet::{bench, io};
 
 mod bench_net;
@@ -84,6 +85,23 @@ struct TrainArgs {
     /// Stop after this many epochs without validation improvement.
     #[arg(long, default_value_t = 6)]
     patience: usize,
+    /// Input channels: geometry (mask, distance, source), physics (+ cell Peclet number) or
+    /// wind (+ the solved wind).
+    #[arg(long, value_enum, default_value_t = InputsArg::Wind)]
+    inputs: InputsArg,
+    /// Channels per U-Net level, shallow to deep, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "8,16,32,32,32")]
+    filters: Vec<usize>,
+    /// Peak AdamW learning rate (cosine decay to 2% of it over the epochs).
+    #[arg(long, default_value_t = 1e-3)]
+    learning_rate: f64,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum InputsArg {
+    Geometry,
+    Physics,
+    Wind,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -198,9 +216,11 @@ struct GenerateArgs {
     /// Generate only shard K of N ("K/N", K from 0); merge shards with `plumenet merge`.
     #[arg(long)]
     shard: Option<Shard>,
-    /// Arena, grid, wind and coefficients (obstacles ignored).
-    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
-    base: PathBuf,
+    /// Random obstacles in this one arena (grid, wind and coefficients; its own obstacles are
+    /// ignored), e.g. data/layouts/wind-tunnel.json, the paper's arena; without it every layout
+    /// is a random room (6-30 m x 3-12 m, wind 0.25-1.5 m/s from any wall).
+    #[arg(long)]
+    base: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -368,14 +388,21 @@ fn bank(a: BankArgs) -> Result<()> {
 }
 
 fn generate(a: GenerateArgs) -> Result<()> {
-    let base = Layout::load(&a.base)?.spec().clone();
+    let distribution = match &a.base {
+        Some(path) => Distribution::Base {
+            base: Layout::load(path)?.spec().clone(),
+            params: GenerateParams::default(),
+        },
+        None => Distribution::Rooms {
+            params: RoomParams::default(),
+        },
+    };
     let config = GenerateConfig {
-        base,
+        distribution,
         layouts: a.layouts,
         sources_per_layout: a.sources,
         seed: a.seed,
         shard: a.shard,
-        params: GenerateParams::default(),
     };
     let bar = progress_bar(config.layout_range().len(), "layouts");
     let manifest = dataset::generate(&config, &a.out, &|| bar.inc(1))?;
@@ -487,11 +514,21 @@ pub(crate) fn export_dir(prefix: &str) -> Result<tempfile::TempDir> {
 
 fn train(a: TrainArgs) -> Result<()> {
     let data = TrainingData::load(&a.data)?;
+    let inputs = match a.inputs {
+        InputsArg::Geometry => InputSet::Geometry,
+        InputsArg::Physics => InputSet::Physics,
+        InputsArg::Wind => InputSet::Wind,
+    };
     let config = TrainingConfig {
         epochs: a.epochs,
         batch_size: a.batch_size,
         seed: a.seed,
         patience: a.patience,
+        learning_rate: a.learning_rate,
+        inputs,
+        model: PlumeNetConfig::new()
+            .with_in_channels(inputs.channels())
+            .with_filters(a.filters.clone()),
         encoding: match a.encoding {
             EncodingArg::Gaussian => SourceEncoding::Gaussian,
             EncodingArg::Distance => SourceEncoding::Distance,
@@ -514,11 +551,19 @@ fn train(a: TrainArgs) -> Result<()> {
             bar.set_message(format!("loss {:.4}", running.0 / running.1 as f64));
         }
         TrainEvent::Epoch(e) => {
+            let by_size = e
+                .validation_by_size
+                .unwrap_or_default()
+                .map(|v| v.map_or("-".to_string(), |v| format!("{v:.5}")))
+                .join(" / ");
             say(
                 &bar,
                 format!(
-                    "epoch {:3}  train {:.5}  validation {:.5}",
-                    e.epoch, e.train, e.validation
+                    "epoch {:3}  train {:.5}  validation {:.5} (small / medium / large rooms {by_size})  {:.0} s",
+                    e.epoch,
+                    e.train,
+                    e.validation,
+                    e.seconds.unwrap_or(0.0)
                 ),
             );
             bar.reset();
@@ -558,26 +603,30 @@ fn eval(a: EvalArgs) -> Result<()> {
             "warning: this is the model's training dataset; use unseen layouts for an honest score"
         );
     }
-    let (scores, summary) = evaluate(&model, &data, a.points, a.seed)?;
-    println!(
-        "{} maps: median relative L2 {:.4} (p90 {:.4}), median Spearman {:.4} (p10 {:.4})",
-        summary.maps,
-        summary.median_relative_l2,
-        summary.p90_relative_l2,
-        summary.median_spearman,
-        summary.p10_spearman
-    );
+    let report = evaluate(&model, &data, a.points, a.seed)?;
+    let line = |name: &str, s: &Summary| {
+        println!(
+            "{name:<24} {:>5} maps  median relative L2 {:.3} (p90 {:.3})  median Spearman {:.3} (p10 {:.3})",
+            s.maps, s.median_relative_l2, s.p90_relative_l2, s.median_spearman, s.p10_spearman
+        );
+    };
+    line("all", &report.summary);
+    for class in report.by_size.iter().chain(&report.by_speed) {
+        if let Some(s) = &class.summary {
+            line(&class.class, s);
+        }
+    }
     if let Some(path) = &a.json {
-        io::write_json(path, &json!({ "summary": summary, "maps": scores }))?;
+        io::write_json(path, &report)?;
     }
     if let Some(path) = &a.png {
         let mut panels = Vec::new();
-        for score in scores.iter().take(3) {
+        for score in report.maps.iter().take(3) {
             let s = score.sample;
-            let layout = data.manifest.layouts[data.source_layout[s]]
-                .clone()
-                .check()?;
-            let truth = data.concentration.index_axis(Axis(0), s).mapv(f64::from);
+            // The dataset is held in the canonical frame, so the maps are drawn in it.
+            let real = &data.layouts()[score.layout];
+            let layout = Frame::of(real).layout_to_canonical(real)?;
+            let truth = data.concentration(s).mapv(f64::from);
             let pred = model.predict(&layout, data.source_xy[s])?;
             let error = &pred - &truth;
             let title = |what: &str| format!("map {s}: {what}");

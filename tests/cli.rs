@@ -278,7 +278,10 @@ fn shipped_model_predicts_and_banks_the_paper_arena() {
         "--out",
         tmp.path().join("b.npy").to_str().unwrap(),
     ]);
-    assert_clean_failure(&out, "was trained for a [32, 144] grid");
+    assert_clean_failure(
+        &out,
+        "is from before any-room models (plumenet-model-v1) and knows only a [32, 144] grid",
+    );
 }
 
 #[test]

@@ -15,7 +15,6 @@ use plumenet::surrogate::Surrogate;
 use plumenet::surrogate::backend::device;
 use plumenet::surrogate::conv::conv2d_same;
 use plumenet::surrogate::conv::kernel::{self, ConvShape, Isa};
-use plumenet::surrogate::data::INPUT_CHANNELS;
 use plumenet::surrogate::model::ConvImpl;
 
 use crate::common::{repo_path, wind_tunnel};
@@ -375,10 +374,10 @@ fn shipped_model_bank_unchanged() {
     let candidates = layout.candidates(0.25).unwrap();
     let sources: Vec<[f64; 2]> = candidates.iter().step_by(97).copied().collect();
     let inputs = model.inputs(&layout, &sources).unwrap();
-    let [h, w] = model.saved().grid;
+    let [h, w] = model.grid(&layout);
     let n = sources.len();
     let input = Tensor::<4>::from_data(
-        TensorData::new(inputs.concat(), [n, INPUT_CHANNELS, h, w]),
+        TensorData::new(inputs.concat(), [n, model.channels(), h, w]),
         &device(),
     );
     let own = values(model.net().forward_with(input.clone(), ConvImpl::Own));
@@ -402,7 +401,10 @@ fn shipped_model_bank_unchanged() {
 fn layer_list_covers_the_network() {
     use plumenet::surrogate::PlumeNetConfig;
     use plumenet::surrogate::bench::{conv_layers, forward_macs};
-    let config = PlumeNetConfig::new();
+    // DeepCFD's four levels (the shipped model before the any-room change).
+    let config = PlumeNetConfig::new()
+        .with_in_channels(3)
+        .with_filters(vec![8, 16, 32, 32]);
     let layers = conv_layers(&config, [32, 144], 1);
     assert_eq!(layers.iter().map(|(_, n)| n).sum::<usize>(), 21);
     let convs: u64 = layers.iter().map(|(s, n)| (s.macs() * n) as u64).sum();

@@ -1,11 +1,14 @@
-//! Dataset generation: determinism, shards + merge, manifest checks, random layouts.
+//! Dataset generation: determinism, shards + merge, manifest checks, random layouts and rooms.
 
 use std::path::Path;
 
-use ndarray::{Array1, Array3, Ix1, Ix3};
-use plumenet::dataset::{self, GenerateConfig, GenerateParams, Manifest, Shard};
+use ndarray::{Array1, Ix1};
+use plumenet::dataset::{
+    self, Distribution, GenerateConfig, GenerateParams, Manifest, RoomParams, Shard,
+};
+use plumenet::frame::Frame;
 use plumenet::io::read_npy;
-use plumenet::layout::{Layout, LayoutSpec};
+use plumenet::layout::{Layout, LayoutSpec, WindFrom};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -19,12 +22,36 @@ fn base() -> LayoutSpec {
 
 fn config(shard: Option<Shard>) -> GenerateConfig {
     GenerateConfig {
-        base: base(),
+        distribution: Distribution::Base {
+            base: base(),
+            params: GenerateParams::default(),
+        },
         layouts: 3,
         sources_per_layout: 2,
         seed: 11,
         shard,
-        params: GenerateParams::default(),
+    }
+}
+
+/// Small rooms on a coarse grid, so that generating them is quick.
+pub fn small_rooms() -> RoomParams {
+    RoomParams {
+        width_m: [4, 8],
+        height_m: [3, 5],
+        cell_m: 0.25,
+        ..RoomParams::default()
+    }
+}
+
+fn rooms_config(shard: Option<Shard>) -> GenerateConfig {
+    GenerateConfig {
+        distribution: Distribution::Rooms {
+            params: small_rooms(),
+        },
+        layouts: 5,
+        sources_per_layout: 2,
+        seed: 3,
+        shard,
     }
 }
 
@@ -44,6 +71,129 @@ fn bytes(dir: &Path) -> Vec<(String, Vec<u8>)> {
 }
 
 #[test]
+fn rooms_are_reproducible_and_shard_like_one_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let m = dataset::generate(&rooms_config(None), &a, &|| ()).unwrap();
+    dataset::generate(&rooms_config(None), &b, &|| ()).unwrap();
+    assert_eq!(bytes(&a), bytes(&b));
+    let shards: Vec<_> = (0..3)
+        .map(|k| tmp.path().join(format!("shard{k}")))
+        .collect();
+    for (k, dir) in shards.iter().enumerate() {
+        dataset::generate(
+            &rooms_config(Some(Shard { index: k, count: 3 })),
+            dir,
+            &|| (),
+        )
+        .unwrap();
+    }
+    let merged = tmp.path().join("merged");
+    let paths: Vec<&Path> = shards.iter().rev().map(|p| p.as_path()).collect();
+    dataset::merge(&paths, &merged).unwrap();
+    assert_eq!(bytes(&a), bytes(&merged));
+    // The manifest records the distribution, and the rooms differ in size.
+    assert_eq!(
+        m.distribution,
+        Distribution::Rooms {
+            params: small_rooms()
+        }
+    );
+    let sizes: std::collections::BTreeSet<_> = m
+        .layouts
+        .iter()
+        .map(|l| (l.width_m as u32, l.height_m as u32))
+        .collect();
+    assert!(sizes.len() > 1, "{sizes:?}");
+    let cells: usize = m
+        .layouts
+        .iter()
+        .map(|l| dataset::grid_of(l).0 * dataset::grid_of(l).1)
+        .sum();
+    assert_eq!(m.arrays["concentration"].shape, vec![2 * cells]);
+    assert_eq!(m.arrays["wind"].shape, vec![2 * cells]);
+}
+
+#[test]
+fn random_rooms_follow_the_distribution_and_the_rules() {
+    let params = RoomParams::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let mut directions = std::collections::BTreeSet::new();
+    let (mut small, mut large) = (Vec::new(), Vec::new());
+    for _ in 0..150 {
+        let l = dataset::random_room(&params, &mut rng).unwrap();
+        let (w, h, u) = (l.width(), l.height(), l.wind_speed());
+        assert!(w.fract() == 0.0 && (6.0..=30.0).contains(&w), "width {w}");
+        assert!(h.fract() == 0.0 && (3.0..=12.0).contains(&h), "height {h}");
+        assert!((0.25..=1.5).contains(&u), "speed {u}");
+        assert_eq!(l.cell(), 0.125);
+        directions.insert(l.wind_from().name());
+        let count = l.spec().obstacles.len();
+        assert!(count >= 1);
+        if w * h <= 60.0 {
+            small.push(count as f64);
+        } else if w * h > 150.0 {
+            large.push(count as f64);
+        }
+        // In the canonical frame: every cross-section keeps min_gap free, and the inlet and
+        // outlet columns are free.
+        let c = Frame::of(&l).layout_to_canonical(&l).unwrap();
+        for col in c.solid().columns() {
+            let free = col.iter().filter(|s| !**s).count() as f64 * c.cell();
+            assert!(free >= params.min_gap_m - 1e-9);
+        }
+        let solid = c.solid();
+        let last = c.nx() - 1;
+        assert!((0..c.ny()).all(|j| !solid[[j, 0]] && !solid[[j, last]]));
+    }
+    assert_eq!(directions.len(), 4, "{directions:?}");
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(
+        mean(&large) > 2.0 * mean(&small),
+        "obstacle groups grow with the floor area: {} small vs {} large",
+        mean(&small),
+        mean(&large)
+    );
+}
+
+#[test]
+fn bad_room_parameters_are_clear_errors() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let bad = [
+        RoomParams {
+            width_m: [10, 6],
+            ..RoomParams::default()
+        },
+        RoomParams {
+            cell_m: 0.3,
+            ..RoomParams::default()
+        },
+        RoomParams {
+            directions: Vec::new(),
+            ..RoomParams::default()
+        },
+        RoomParams {
+            speed_mps: [f64::NAN, 1.0],
+            ..RoomParams::default()
+        },
+    ];
+    for p in bad {
+        let err = dataset::random_room(&p, &mut rng).unwrap_err().to_string();
+        assert!(
+            err.starts_with("room parameters") || err.contains("room parameters"),
+            "{err}"
+        );
+    }
+    // A room drawn with one direction only has that direction.
+    let only_north = RoomParams {
+        directions: vec![WindFrom::North],
+        ..RoomParams::default()
+    };
+    let l = dataset::random_room(&only_north, &mut rng).unwrap();
+    assert_eq!(l.wind_from(), WindFrom::North);
+}
+
+#[test]
 fn same_seed_same_bytes_and_shards_merge_to_the_same_dataset() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
@@ -52,8 +202,8 @@ fn same_seed_same_bytes_and_shards_merge_to_the_same_dataset() {
     assert_eq!(bytes(&a), bytes(&b));
     assert_eq!(
         bytes(&a).len(),
-        8,
-        "7 arrays + manifest, no temporary files left"
+        7,
+        "6 arrays + manifest, no temporary files left"
     );
 
     let shards: Vec<_> = (0..2)
@@ -85,11 +235,14 @@ fn arrays_have_the_documented_shapes_and_contents() {
     let tmp = tempfile::tempdir().unwrap();
     let m = dataset::generate(&config(None), tmp.path(), &|| ()).unwrap();
     assert_eq!(Manifest::load(tmp.path()).unwrap(), m);
-    let mask: Array3<f32> = read_npy::<f32, Ix3>(&tmp.path().join("obstacle_mask.npy")).unwrap();
-    let conc: Array3<f32> = read_npy::<f32, Ix3>(&tmp.path().join("concentration.npy")).unwrap();
+    let flat = |name: &str| read_npy::<f32, Ix1>(&tmp.path().join(name)).unwrap();
+    let mask = flat("obstacle_mask.npy")
+        .into_shape_with_order((3, 16, 72))
+        .unwrap();
+    let conc = flat("concentration.npy")
+        .into_shape_with_order((6, 16, 72))
+        .unwrap();
     let owner: Array1<u32> = read_npy::<u32, Ix1>(&tmp.path().join("source_layout.npy")).unwrap();
-    assert_eq!(mask.dim(), (3, 16, 72));
-    assert_eq!(conc.dim(), (6, 16, 72));
     assert_eq!(owner.to_vec(), vec![0, 0, 1, 1, 2, 2]);
     for s in 0..6 {
         let l = owner[s] as usize;

@@ -6,13 +6,16 @@ use std::path::Path;
 
 use ndarray::{Array4, ArrayD};
 use plumenet::Error;
-use plumenet::dataset::{self, GenerateConfig, GenerateParams};
+use plumenet::dataset::{self, Distribution, GenerateConfig, GenerateParams};
 use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::surrogate::bench::{export_reference, forward_macs, time_bank, time_training};
+use plumenet::surrogate::config::EpochLoss;
 use plumenet::surrogate::model::ConvImpl;
 use plumenet::surrogate::saved::{load_weights, weights_bytes, weights_digest};
-use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainingConfig, TrainingData, train};
+use plumenet::surrogate::{
+    PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train,
+};
 
 use crate::common::wind_tunnel;
 
@@ -24,15 +27,28 @@ const BLOCKED: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed
 
 fn tiny_dataset(dir: &Path) -> TrainingData {
     let config = GenerateConfig {
-        base: Layout::from_json(COARSE).unwrap().spec().clone(),
+        distribution: Distribution::Base {
+            base: Layout::from_json(COARSE).unwrap().spec().clone(),
+            params: GenerateParams::default(),
+        },
         layouts: 3,
         sources_per_layout: 4,
         seed: 3,
         shard: None,
-        params: GenerateParams::default(),
     };
     dataset::generate(&config, dir, &|| ()).unwrap();
     TrainingData::load(dir).unwrap()
+}
+
+/// A run's losses without the wall-clock times.
+fn losses(history: &[EpochLoss]) -> Vec<EpochLoss> {
+    history
+        .iter()
+        .map(|e| EpochLoss {
+            seconds: None,
+            ..*e
+        })
+        .collect()
 }
 
 fn tiny_config(epochs: usize) -> TrainingConfig {
@@ -46,6 +62,7 @@ fn tiny_config(epochs: usize) -> TrainingConfig {
         learning_rate: 1e-2,
         patience: 100,
         validation_fraction: 0.34,
+        pad_cells: 8,
         ..TrainingConfig::default()
     }
 }
@@ -59,11 +76,19 @@ fn training_reduces_the_loss_and_resumes_exactly() {
     let last = straight.history.last().unwrap().train;
     assert!(last < 0.8 * first, "training loss {first} -> {last}");
 
-    // An interrupted run (10 epochs) continued to 20 gives bit-identical weights.
+    // A run interrupted after epoch 10 (a panic right after the checkpoint is written) and
+    // started again gives bit-identical losses and weights, learning-rate schedule included.
     let b = tmp.path().join("b");
-    train(&data, &tiny_config(10), &b, &mut |_| ()).unwrap();
+    let interrupted = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        train(&data, &tiny_config(20), &b, &mut |event| {
+            if matches!(event, TrainEvent::Epoch(e) if e.epoch == 10) {
+                panic!("interrupted");
+            }
+        })
+    }));
+    assert!(interrupted.is_err());
     let resumed = train(&data, &tiny_config(20), &b, &mut |_| ()).unwrap();
-    assert_eq!(resumed.history, straight.history);
+    assert_eq!(losses(&resumed.history), losses(&straight.history));
     let layout = Layout::from_json(COARSE).unwrap();
     let predict = |dir: &Path| {
         Surrogate::load(dir)
@@ -105,7 +130,7 @@ fn concurrent_trainings_are_identical() {
         handles.into_iter().map(|h| h.join().unwrap()).collect()
     });
     for (history, model) in &runs[1..] {
-        assert_eq!(history, &runs[0].0);
+        assert_eq!(losses(history), losses(&runs[0].0));
         assert_eq!(
             model.saved().weights_digest,
             runs[0].1.saved().weights_digest
@@ -129,7 +154,8 @@ fn seeded_initial_weights_follow_the_default_distribution() {
     let device = plumenet::surrogate::backend::device();
     let net = PlumeNetConfig::new().init_seeded(&device, 0);
     let tensors = plumenet::surrogate::saved::named_tensors(&net).unwrap();
-    assert_eq!(tensors.len(), 2 * (4 * 3 + 3 * 3 + 3 + 1));
+    // 5 levels: 5 encoder and 4 decoder blocks of 3 convolutions, 4 up-convolutions, the head.
+    assert_eq!(tensors.len(), 2 * (5 * 3 + 4 * 3 + 4 + 1));
     for (name, array) in tensors {
         let fan_in = if name.starts_with("ups") {
             // Transposed: [in, out, k, k]; the bias has `out` entries.
@@ -190,12 +216,46 @@ fn saved_models_load_bit_identically_and_bad_files_are_errors() {
     );
     assert!(p1.iter().all(|v| *v >= 0.0 && v.is_finite()));
 
-    // Another grid, a source in an obstacle, a truncated weights file, a missing model.
+    // Rooms outside the trained ranges (cell, length, speed, diffusivity), a source in an
+    // obstacle, a truncated weights file, a missing model.
+    assert_eq!(
+        m1.saved().ranges.unwrap().length_m,
+        [18.0, 18.0],
+        "the ranges are those of the training rooms"
+    );
     let err = m1
         .predict(&wind_tunnel(), [3.0, 2.0])
         .unwrap_err()
         .to_string();
-    assert!(err.contains("trained for a [16, 72] grid"), "{err}");
+    assert!(err.contains("differs from the 0.25 m cells"), "{err}");
+    for (json, expected) in [
+        (
+            r#"{"width_m":20,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#,
+            "room length along the wind (m) is 20, outside the trained range [18, 18]",
+        ),
+        (
+            r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":1.0}}"#,
+            "wind speed (m/s) is 1, outside the trained range [0.75, 0.75]",
+        ),
+        (
+            r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},"diffusivity_m2ps":0.1}"#,
+            "diffusivity_m2ps is 0.1, outside the trained range [0.05, 0.05]",
+        ),
+    ] {
+        let room = Layout::from_json(json).unwrap();
+        let err = m1.predict(&room, [3.0, 2.0]).unwrap_err().to_string();
+        assert!(
+            err.contains(expected) && err.contains("plumenet train"),
+            "{err}"
+        );
+    }
+    // The same arena turned (wind from the south) is covered: length and width are taken
+    // along and across the wind.
+    let turned = Layout::from_json(
+        r#"{"width_m":4,"height_m":18,"cell_m":0.25,"wind":{"speed_mps":0.75,"from":"south"}}"#,
+    )
+    .unwrap();
+    assert!(m1.predict(&turned, [2.0, 3.0]).is_ok());
     let blocked = Layout::from_json(BLOCKED).unwrap();
     assert!(matches!(
         m1.predict(&blocked, [6.5, 1.5]),
@@ -261,14 +321,23 @@ fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up(
     // Burn's raw outputs, transformed back, are the bank.
     let raw: Array4<f32> = plumenet::io::read_npy(&out.join("outputs.npy")).unwrap();
     let inputs: Array4<f32> = plumenet::io::read_npy(&out.join("inputs.npy")).unwrap();
-    assert_eq!(inputs.dim(), (5, 3, 16, 72));
+    assert_eq!(inputs.dim(), (5, 6, 16, 72));
+    // The Peclet plane, U dx / D inside the room, and the solved wind relative to the inlet's
+    // (uniform far upwind of the obstacle).
+    assert!((inputs[[0, 3, 5, 5]] - 0.75 * 0.25 / 0.05).abs() < 1e-6);
+    assert!(
+        (inputs[[0, 4, 8, 1]] - 1.0).abs() < 0.05,
+        "{}",
+        inputs[[0, 4, 8, 1]]
+    );
+    assert!(inputs[[0, 5, 8, 1]].abs() < 0.05);
     let bank = model.predict_many(&layout, candidates).unwrap();
     let norm = model.saved().normalization;
     for ((n, _, j, i), &v) in raw.indexed_iter() {
         let expected = if layout.is_solid(j, i) {
             0.0
         } else {
-            norm.inverse(v)
+            norm.inverse(v, layout.wind_speed())
         };
         assert_eq!(bank[[n, j, i]].to_bits(), expected.to_bits());
     }
@@ -302,4 +371,146 @@ fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up(
         time_training(&model, &layout, candidates, (6, 1), ConvImpl::Own),
         Err(Error::Parameter(_))
     ));
+}
+
+/// A dataset of small rooms of several sizes, speeds and wind directions (coarse cells).
+fn rooms_dataset(dir: &Path, layouts: usize, seed: u64) -> TrainingData {
+    let config = GenerateConfig {
+        distribution: Distribution::Rooms {
+            params: crate::dataset::small_rooms(),
+        },
+        layouts,
+        sources_per_layout: 3,
+        seed,
+        shard: None,
+    };
+    dataset::generate(&config, dir, &|| ()).unwrap();
+    TrainingData::load(dir).unwrap()
+}
+
+/// Rooms are held in their canonical frame: each stored field equals the physics solved in the
+/// turned (wind from the west) layout for the turned source, to round-off.
+#[test]
+fn room_datasets_load_in_the_canonical_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = rooms_dataset(&tmp.path().join("data"), 6, 4);
+    let directions: std::collections::BTreeSet<_> = data
+        .layouts()
+        .iter()
+        .map(|l| l.wind_from().name())
+        .collect();
+    assert!(directions.len() >= 2, "{directions:?}");
+    for s in 0..data.len() {
+        let real = &data.layouts()[data.source_layout[s]];
+        let canonical = plumenet::frame::Frame::of(real)
+            .layout_to_canonical(real)
+            .unwrap();
+        let bank = PhysicsSolver
+            .bank(&canonical, &[data.source_xy[s]])
+            .unwrap();
+        let stored = data.concentration(s);
+        let expected = bank.fields.index_axis(ndarray::Axis(0), 0);
+        assert_eq!(stored.dim(), expected.dim());
+        let peak = expected.iter().fold(0.0f32, |m, v| m.max(*v));
+        let worst = stored
+            .iter()
+            .zip(expected.iter())
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst <= 1e-4 * peak, "sample {s}: {worst} vs peak {peak}");
+        assert_eq!(data.room(data.source_layout[s]).shape(), canonical.shape());
+    }
+    // Buckets hold samples of one padded grid, and cover every sample once.
+    let all: Vec<usize> = (0..data.len()).collect();
+    let buckets = data.buckets(&all, 8);
+    assert_eq!(buckets.iter().map(Vec::len).sum::<usize>(), data.len());
+    for bucket in &buckets {
+        let shapes: std::collections::BTreeSet<_> = bucket
+            .iter()
+            .map(|&s| {
+                let (h, w) = data.room(data.source_layout[s]).shape();
+                (h.div_ceil(8), w.div_ceil(8))
+            })
+            .collect();
+        assert_eq!(shapes.len(), 1);
+    }
+}
+
+/// One model for rooms of several sizes: training on them lowers the loss, records the ranges
+/// it saw, predicts rooms of other sizes within them (any grid), and evaluates per class.
+#[test]
+fn one_model_trains_on_rooms_of_several_sizes_and_reports_per_class() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = rooms_dataset(&tmp.path().join("data"), 6, 4);
+    let dir = tmp.path().join("model");
+    let state = train(&data, &tiny_config(12), &dir, &mut |_| ()).unwrap();
+    let (first, last) = (&state.history[0], state.history.last().unwrap());
+    assert!(
+        last.train < 0.8 * first.train,
+        "{} -> {}",
+        first.train,
+        last.train
+    );
+    let by_size = last.validation_by_size.unwrap();
+    assert!(by_size.iter().any(Option::is_some));
+    let model = Surrogate::load(&dir).unwrap();
+    let ranges = model.saved().ranges.unwrap();
+    let lengths: Vec<f64> = data
+        .layouts()
+        .iter()
+        .map(|l| {
+            if l.wind_from().downwind()[0] != 0.0 {
+                l.width()
+            } else {
+                l.height()
+            }
+        })
+        .collect();
+    let min = lengths.iter().cloned().fold(f64::INFINITY, f64::min);
+    let max = lengths.iter().cloned().fold(0.0, f64::max);
+    assert_eq!(ranges.length_m, [min, max]);
+    assert_eq!(ranges.cell_m, 0.25);
+    // A room of a size not in the dataset, inside the ranges, is predicted on its own grid.
+    let speed = 0.5 * (ranges.speed_mps[0] + ranges.speed_mps[1]);
+    let across = ranges.across_m[0];
+    let room = Layout::from_json(&format!(
+        r#"{{"width_m":{max},"height_m":{across},"cell_m":0.25,"wind":{{"speed_mps":{speed}}}}}"#
+    ))
+    .unwrap();
+    let field = model.predict(&room, [1.0, across / 2.0]).unwrap();
+    assert_eq!(field.dim(), room.shape());
+    assert!(field.iter().all(|v| v.is_finite() && *v >= 0.0));
+    // Per-class evaluation covers every map once in each table.
+    let test = rooms_dataset(&tmp.path().join("test"), 3, 5);
+    let report = plumenet::surrogate::eval::evaluate(&model, &test, 50, 0);
+    // A test room may fall outside the few training rooms' ranges: then the error says so.
+    match report {
+        Ok(report) => {
+            let count = |classes: &[plumenet::surrogate::eval::ClassSummary]| {
+                classes
+                    .iter()
+                    .filter_map(|c| c.summary.map(|s| s.maps))
+                    .sum::<usize>()
+            };
+            assert_eq!(count(&report.by_size), report.summary.maps);
+            assert_eq!(count(&report.by_speed), report.summary.maps);
+            assert_eq!(report.summary.maps, test.len());
+        }
+        Err(e) => assert!(e.to_string().contains("outside the trained range"), "{e}"),
+    }
+}
+
+#[test]
+fn the_cosine_schedule_decays_from_the_rate_to_its_final_fraction() {
+    use plumenet::surrogate::config::LrSchedule;
+    let cosine = LrSchedule::Cosine {
+        final_fraction: 0.02,
+    };
+    assert_eq!(cosine.rate(1e-3, 0.0), 1e-3);
+    assert!((cosine.rate(1e-3, 1.0) - 2e-5).abs() < 1e-12);
+    assert!((cosine.rate(1e-3, 0.5) - 0.51e-3).abs() < 1e-12);
+    let rates: Vec<f64> = (0..=10)
+        .map(|k| cosine.rate(1e-3, k as f64 / 10.0))
+        .collect();
+    assert!(rates.windows(2).all(|w| w[1] < w[0]));
+    assert_eq!(LrSchedule::Constant.rate(1e-3, 0.7), 1e-3);
 }

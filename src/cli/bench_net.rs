@@ -94,11 +94,11 @@ struct Side {
 }
 
 /// Times each convolution shape of the network alone and prints its GFLOP/s, ours and Burn's.
-fn layer_profile(model: &Surrogate, batch: usize, peak: Option<f64>) -> Value {
+fn layer_profile(model: &Surrogate, grid: [usize; 2], batch: usize, peak: Option<f64>) -> Value {
     let saved = model.saved();
     println!("convolution layers (batch {batch}, with ReLU; GFLOP/s, % of peak for ours):");
     let mut rows = Vec::new();
-    for (shape, count) in conv_layers(&saved.architecture, saved.grid, batch) {
+    for (shape, count) in conv_layers(&saved.architecture, grid, batch) {
         let flop = 2.0 * shape.macs() as f64;
         let (of, ot) = time_conv_layer(shape, ConvImpl::Own, 5);
         let (bf, bt) = time_conv_layer(shape, ConvImpl::Burn, 3);
@@ -130,7 +130,7 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
     let model = Surrogate::load(&a.model)?;
     let candidates = layout.candidates(a.spacing)?;
     let n = candidates.len();
-    let grid = model.saved().grid;
+    let grid = model.grid(&layout);
     let macs = forward_macs(&model.saved().architecture, grid) as f64;
     let threads = rayon::current_num_threads();
     println!(
@@ -308,7 +308,7 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
     );
     report["ratios"] = Value::Object(ratios);
     if a.layers {
-        report["layers"] = layer_profile(&model, a.batch, peak_gflops);
+        report["layers"] = layer_profile(&model, grid, a.batch, peak_gflops);
     }
     report["identity"] = identity;
     if let Some(path) = &a.json {

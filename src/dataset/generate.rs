@@ -2,13 +2,14 @@
 
 use std::path::Path;
 
-use ndarray::{Array1, Array2, Array3, Array4, Axis, s};
+use ndarray::Array3;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use super::manifest::{GenerateParams, Manifest, ShardInfo};
-use super::{GENERATOR_VERSION, SOURCE_ENCODING_SIGMA_CELLS};
+use super::GENERATOR_VERSION;
+use super::manifest::{Arrays, Distribution, GenerateParams, Manifest, ShardInfo};
+use super::rooms::random_room;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::{Layout, LayoutSpec, Obstacle};
@@ -49,8 +50,8 @@ impl std::str::FromStr for Shard {
 /// What to generate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GenerateConfig {
-    /// Arena, grid, wind and coefficients shared by every layout (its obstacles are ignored).
-    pub base: LayoutSpec,
+    /// What the layouts are drawn from (a base arena's obstacles are ignored).
+    pub distribution: Distribution,
     /// Number of layouts in the whole dataset (all shards).
     pub layouts: usize,
     /// Sources per layout.
@@ -59,8 +60,6 @@ pub struct GenerateConfig {
     pub seed: u64,
     /// Which part to generate; `None` for all.
     pub shard: Option<Shard>,
-    /// Layout and source sampling parameters.
-    pub params: GenerateParams,
 }
 
 impl GenerateConfig {
@@ -78,8 +77,7 @@ impl GenerateConfig {
                 shard.count, self.layouts
             )));
         }
-        self.params.check()?;
-        Layout::from_json(&serde_json::to_string(&self.base).unwrap_or_default()).map(|_| ())
+        self.distribution.check()
     }
 
     /// The global layout indices this run generates.
@@ -187,30 +185,42 @@ struct LayoutSample {
     fields: Array3<f32>,
 }
 
+/// Redraw a room whose wind cannot be solved at most this many times.
+const MAX_UNSOLVED_ROOMS: usize = 10;
+
 fn generate_layout(config: &GenerateConfig, k: usize) -> Result<LayoutSample> {
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     rng.set_stream(k as u64);
-    let layout = random_layout(&config.base, &config.params, &mut rng)?;
+    let (layout, wind) = match &config.distribution {
+        Distribution::Base { base, params } => {
+            let layout = random_layout(base, params, &mut rng)?;
+            let wind = WindField::solve(&layout)?;
+            (layout, wind)
+        }
+        Distribution::Rooms { params } => {
+            // A room whose steady wind cannot be found is replaced by the next draw of its
+            // stream (deterministic like everything else).
+            let mut attempt = 0;
+            loop {
+                let layout = random_room(params, &mut rng)?;
+                match WindField::solve(&layout) {
+                    Ok(wind) => break (layout, wind),
+                    Err(e) if attempt + 1 >= MAX_UNSOLVED_ROOMS => return Err(e),
+                    Err(_) => attempt += 1,
+                }
+            }
+        }
+    };
+    let margin = config.distribution.source_margin_m();
     let sources = (0..config.sources_per_layout)
-        .map(|_| random_source(&layout, config.params.source_margin_m, &mut rng))
+        .map(|_| random_source(&layout, margin, &mut rng))
         .collect::<Result<Vec<_>>>()?;
-    let wind = WindField::solve(&layout)?;
     let fields = Transport::new(&layout, &wind)?.bank(&sources)?;
     Ok(LayoutSample {
         wind: wind.centred().mapv(|x| x as f32),
         layout,
         sources,
         fields,
-    })
-}
-
-/// Gaussian source encoding `[H, W]` (see the module docs).
-pub fn source_encoding(layout: &Layout, [x, y]: [f64; 2]) -> Array2<f32> {
-    let sigma = SOURCE_ENCODING_SIGMA_CELLS * layout.cell();
-    Array2::from_shape_fn(layout.shape(), |(j, i)| {
-        let (cx, cy) = layout.cell_centre(j, i);
-        let d2 = (cx - x).powi(2) + (cy - y).powi(2);
-        (-d2 / (2.0 * sigma * sigma)).exp() as f32
     })
 }
 
@@ -227,16 +237,12 @@ pub fn generate(
     progress: &(dyn Fn() + Sync),
 ) -> Result<Manifest> {
     config.check()?;
+    let distribution = config.distribution.normalized();
     if let Ok(done) = Manifest::load(out)
         && done.seed == config.seed
         && done.layouts_total == config.layouts
         && done.sources_per_layout == config.sources_per_layout
-        && done.params == config.params
-        && done.base
-            == (LayoutSpec {
-                obstacles: Vec::new(),
-                ..config.base.clone()
-            })
+        && done.distribution == distribution
         && done.shard.map(|s| (s.index, s.count)) == config.shard.map(|s| (s.index, s.count))
     {
         // Already complete (a re-run after an interruption elsewhere): nothing to redo.
@@ -253,32 +259,20 @@ pub fn generate(
             sample
         })
         .collect::<Result<Vec<_>>>()?;
-    let (ny, nx) = samples[0].layout.shape();
-    let (l, m) = (samples.len(), config.sources_per_layout);
-    let mut mask = Array3::<f32>::zeros((l, ny, nx));
-    let mut sdf = Array3::<f32>::zeros((l, ny, nx));
-    let mut wind = Array4::<f32>::zeros((l, 2, ny, nx));
-    let mut source_layout = Array1::<u32>::zeros(l * m);
-    let mut source_xy = Array2::<f32>::zeros((l * m, 2));
-    let mut encoding = Array3::<f32>::zeros((l * m, ny, nx));
-    let mut concentration = Array3::<f32>::zeros((l * m, ny, nx));
-    for (n, (sample, k)) in samples.iter().zip(range.clone()).enumerate() {
-        mask.index_axis_mut(Axis(0), n)
-            .assign(&sample.layout.solid().mapv(|s| f32::from(u8::from(s))));
-        sdf.index_axis_mut(Axis(0), n)
-            .assign(&sample.layout.signed_distance().mapv(|d| d as f32));
-        wind.index_axis_mut(Axis(0), n).assign(&sample.wind);
-        concentration
-            .slice_mut(s![n * m..(n + 1) * m, .., ..])
-            .assign(&sample.fields);
-        for (q, &src) in sample.sources.iter().enumerate() {
-            let row = n * m + q;
-            source_layout[row] = k as u32;
-            source_xy[[row, 0]] = src[0] as f32;
-            source_xy[[row, 1]] = src[1] as f32;
-            encoding
-                .index_axis_mut(Axis(0), row)
-                .assign(&source_encoding(&sample.layout, src));
+    let mut arrays = Arrays::default();
+    for (sample, k) in samples.iter().zip(range.clone()) {
+        let layout = &sample.layout;
+        arrays
+            .obstacle_mask
+            .extend(layout.solid().iter().map(|&s| f32::from(u8::from(s))));
+        arrays
+            .signed_distance
+            .extend(layout.signed_distance().iter().map(|&d| d as f32));
+        arrays.wind.extend(sample.wind.iter());
+        arrays.concentration.extend(sample.fields.iter());
+        for &[x, y] in &sample.sources {
+            arrays.source_layout.push(k as u32);
+            arrays.source_xy.extend([x as f32, y as f32]);
         }
     }
     let manifest = Manifest {
@@ -286,33 +280,16 @@ pub fn generate(
         generator_version: GENERATOR_VERSION,
         seed: config.seed,
         layouts_total: config.layouts,
-        sources_per_layout: m,
+        sources_per_layout: config.sources_per_layout,
         shard: config.shard.map(|s| ShardInfo {
             index: s.index,
             count: s.count,
             first_layout: range.start,
-            layouts: l,
+            layouts: samples.len(),
         }),
-        base: LayoutSpec {
-            obstacles: Vec::new(),
-            ..config.base.clone()
-        },
-        params: config.params.clone(),
-        grid: [ny, nx],
-        source_encoding: format!(
-            "exp(-d^2 / (2 s^2)), s = {SOURCE_ENCODING_SIGMA_CELLS} cells, d = distance from cell centre to source"
-        ),
+        distribution,
         layouts: samples.iter().map(|s| s.layout.spec().clone()).collect(),
         arrays: Default::default(),
     };
-    manifest.write_arrays(
-        out,
-        &mask,
-        &sdf,
-        &wind,
-        &source_layout,
-        &source_xy,
-        &encoding,
-        &concentration,
-    )
+    manifest.write_arrays(out, &arrays)
 }

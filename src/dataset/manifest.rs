@@ -3,10 +3,11 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use ndarray::{Array1, Array2, Array3, Array4, ArrayD, Axis, Ix1, IxDyn, concatenate};
+use ndarray::{Array1, Array2, ArrayD, Axis, Ix1, IxDyn, concatenate};
 use serde::{Deserialize, Serialize};
 
 use super::GENERATOR_VERSION;
+use super::rooms::RoomParams;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::LayoutSpec;
@@ -93,6 +94,58 @@ pub struct ArrayInfo {
     pub shape: Vec<usize>,
 }
 
+/// What the layouts of a dataset are drawn from (recorded in the manifest).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Distribution {
+    /// Random rooms ([`super::random_room`]): sizes, wind speeds, directions and obstacles.
+    Rooms {
+        /// The room distribution.
+        params: RoomParams,
+    },
+    /// Random obstacles in one fixed arena (`generate --base`, [`super::random_layout`]).
+    Base {
+        /// Arena, grid, wind and coefficients shared by all layouts (no obstacles).
+        base: LayoutSpec,
+        /// Obstacle and source sampling parameters.
+        params: GenerateParams,
+    },
+}
+
+impl Distribution {
+    /// Sources keep this distance from walls and obstacles (m).
+    pub fn source_margin_m(&self) -> f64 {
+        match self {
+            Distribution::Rooms { params } => params.source_margin_m,
+            Distribution::Base { params, .. } => params.source_margin_m,
+        }
+    }
+
+    /// The distribution with a base arena's obstacles removed (they are never used).
+    pub(super) fn normalized(&self) -> Self {
+        match self {
+            Distribution::Base { base, params } => Distribution::Base {
+                base: LayoutSpec {
+                    obstacles: Vec::new(),
+                    ..base.clone()
+                },
+                params: params.clone(),
+            },
+            rooms => rooms.clone(),
+        }
+    }
+
+    pub(super) fn check(&self) -> Result<()> {
+        match self {
+            Distribution::Rooms { params } => params.check(),
+            Distribution::Base { base, params } => {
+                params.check()?;
+                base.clone().check().map(|_| ())
+            }
+        }
+    }
+}
+
 /// `manifest.json` of a dataset directory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -110,72 +163,99 @@ pub struct Manifest {
     /// Present in a shard directory, absent in a complete dataset.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shard: Option<ShardInfo>,
-    /// Arena, grid, wind and coefficients shared by all layouts.
-    pub base: LayoutSpec,
-    /// Sampling parameters.
-    pub params: GenerateParams,
-    /// Grid shape `[H, W]`.
-    pub grid: [usize; 2],
-    /// How `source_encoding.npy` was computed.
-    pub source_encoding: String,
-    /// The layouts, in order.
+    /// What the layouts are drawn from.
+    pub distribution: Distribution,
+    /// The layouts, in order (each with its own grid, wind and direction).
     pub layouts: Vec<LayoutSpec>,
     /// The arrays, by name.
     pub arrays: BTreeMap<String, ArrayInfo>,
 }
 
 /// Array names in write order, with their numpy dtype.
-const ARRAYS: [(&str, &str); 7] = [
+const ARRAYS: [(&str, &str); 6] = [
     ("obstacle_mask", "<f4"),
     ("signed_distance", "<f4"),
     ("wind", "<f4"),
     ("source_layout", "<u4"),
     ("source_xy", "<f4"),
-    ("source_encoding", "<f4"),
     ("concentration", "<f4"),
 ];
 
+/// The arrays of a dataset (or shard), flat over layouts and sources as described in
+/// [`crate::dataset`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Arrays {
+    /// 1 in obstacle cells, layout after layout.
+    pub obstacle_mask: Vec<f32>,
+    /// Signed distance (m), layout after layout.
+    pub signed_distance: Vec<f32>,
+    /// `u` plane then `v` plane (m/s), layout after layout.
+    pub wind: Vec<f32>,
+    /// Layout index of each source.
+    pub source_layout: Vec<u32>,
+    /// Source positions (m), `[S, 2]`.
+    pub source_xy: Vec<f32>,
+    /// Mean concentration, source after source.
+    pub concentration: Vec<f32>,
+}
+
+/// Cells `(H, W)` of a layout's grid (without rasterising it).
+pub fn grid_of(spec: &LayoutSpec) -> (usize, usize) {
+    (
+        (spec.height_m / spec.cell_m).round() as usize,
+        (spec.width_m / spec.cell_m).round() as usize,
+    )
+}
+
 impl Manifest {
+    /// The expected shape of each array, from the layouts and the sources per layout.
+    fn expected_shapes(&self) -> [Vec<usize>; 6] {
+        let cells: usize = self
+            .layouts
+            .iter()
+            .map(|l| {
+                let (h, w) = grid_of(l);
+                h * w
+            })
+            .sum();
+        let m = self.sources_per_layout;
+        let sources = self.layouts.len() * m;
+        [
+            vec![cells],
+            vec![cells],
+            vec![2 * cells],
+            vec![sources],
+            vec![sources, 2],
+            vec![cells * m],
+        ]
+    }
+
     /// Writes the arrays, then the manifest last (so a directory with a manifest is complete).
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn write_arrays(
-        mut self,
-        dir: &Path,
-        mask: &Array3<f32>,
-        sdf: &Array3<f32>,
-        wind: &Array4<f32>,
-        source_layout: &Array1<u32>,
-        source_xy: &Array2<f32>,
-        encoding: &Array3<f32>,
-        concentration: &Array3<f32>,
-    ) -> Result<Self> {
-        let shapes = [
-            mask.shape(),
-            sdf.shape(),
-            wind.shape(),
-            source_layout.shape(),
-            source_xy.shape(),
-            encoding.shape(),
-            concentration.shape(),
-        ];
+    pub(super) fn write_arrays(mut self, dir: &Path, a: &Arrays) -> Result<Self> {
+        let shapes = self.expected_shapes();
         for ((name, dtype), shape) in ARRAYS.iter().zip(shapes) {
             self.arrays.insert(
                 name.to_string(),
                 ArrayInfo {
                     file: format!("{name}.npy"),
                     dtype: dtype.to_string(),
-                    shape: shape.to_vec(),
+                    shape,
                 },
             );
         }
         let path = |name: &str| dir.join(format!("{name}.npy"));
-        io::write_npy(&path("obstacle_mask"), mask)?;
-        io::write_npy(&path("signed_distance"), sdf)?;
-        io::write_npy(&path("wind"), wind)?;
-        io::write_npy(&path("source_layout"), source_layout)?;
-        io::write_npy(&path("source_xy"), source_xy)?;
-        io::write_npy(&path("source_encoding"), encoding)?;
-        io::write_npy(&path("concentration"), concentration)?;
+        let flat = |v: &Vec<f32>| Array1::from(v.clone());
+        io::write_npy(&path("obstacle_mask"), &flat(&a.obstacle_mask))?;
+        io::write_npy(&path("signed_distance"), &flat(&a.signed_distance))?;
+        io::write_npy(&path("wind"), &flat(&a.wind))?;
+        io::write_npy(
+            &path("source_layout"),
+            &Array1::from(a.source_layout.clone()),
+        )?;
+        let xy = Array2::from_shape_vec((a.source_layout.len(), 2), a.source_xy.clone())
+            .map_err(|e| Error::Dataset(format!("source positions: {e}")))?;
+        io::write_npy(&path("source_xy"), &xy)?;
+        io::write_npy(&path("concentration"), &flat(&a.concentration))?;
         io::write_json(&dir.join("manifest.json"), &self)?;
         Ok(self)
     }
@@ -197,7 +277,8 @@ impl Manifest {
         }
         if m.generator_version != GENERATOR_VERSION {
             return bad(format!(
-                "generator version {} is not the supported {GENERATOR_VERSION}",
+                "generator version {} is not the supported {GENERATOR_VERSION}; \
+                 generate the dataset again with this version of plumenet",
                 m.generator_version
             ));
         }
@@ -208,14 +289,20 @@ impl Manifest {
                 m.layouts.len()
             ));
         }
-        for (name, dtype) in ARRAYS {
+        if m.layouts.iter().any(|l| {
+            let (h, w) = grid_of(l);
+            !(l.cell_m > 0.0 && h > 0 && w > 0 && h * w < 1 << 26)
+        }) {
+            return bad("a listed layout has an impossible grid".into());
+        }
+        for ((name, dtype), expected) in ARRAYS.into_iter().zip(m.expected_shapes()) {
             let Some(info) = m.arrays.get(name) else {
                 return bad(format!("array {name} is not listed"));
             };
-            if info.dtype != dtype {
+            if info.dtype != dtype || info.shape != expected {
                 return bad(format!(
-                    "array {name} has dtype {}, expected {dtype}",
-                    info.dtype
+                    "array {name} is listed as {} {:?}, expected {dtype} {expected:?}",
+                    info.dtype, info.shape
                 ));
             }
             let path = dir.join(&info.file);
@@ -238,25 +325,13 @@ impl Manifest {
     }
 
     /// The manifest with shard information removed, for comparing shards of one dataset.
-    fn identity(
-        &self,
-    ) -> (
-        u32,
-        u64,
-        usize,
-        usize,
-        &LayoutSpec,
-        &GenerateParams,
-        [usize; 2],
-    ) {
+    fn identity(&self) -> (u32, u64, usize, usize, &Distribution) {
         (
             self.generator_version,
             self.seed,
             self.layouts_total,
             self.sources_per_layout,
-            &self.base,
-            &self.params,
-            self.grid,
+            &self.distribution,
         )
     }
 }

@@ -13,17 +13,17 @@ use std::time::Instant;
 
 use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
-use ndarray::{ArrayD, IxDyn};
+use ndarray::{Array2, ArrayD, IxDyn};
 
 use super::config::TrainingConfig;
 use super::conv::kernel::ConvShape;
 use super::conv::{burn_conv2d_same, conv2d_same};
-use super::data::INPUT_CHANNELS;
 use super::inference::Surrogate;
 use super::model::{ConvImpl, PlumeNetConfig};
 use super::saved::named_tensors;
 use super::training::masked_mse;
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::io;
 use crate::layout::Layout;
 
@@ -50,8 +50,20 @@ pub fn forward_macs(config: &PlumeNetConfig, [h, w]: [usize; 2]) -> u64 {
     macs + pixels(0) * f[0] as u64
 }
 
+/// The network's view of `layout`'s cells on the padded canonical grid `[h, w]`: 1 in obstacles
+/// and outside the room, 0 in free cells.
+fn solid_plane(layout: &Layout, [h, w]: [usize; 2]) -> Result<Array2<f32>> {
+    let canonical = Frame::of(layout).layout_to_canonical(layout)?;
+    let mut plane = Array2::ones((h, w));
+    for ((j, i), &s) in canonical.solid().indexed_iter() {
+        plane[[j, i]] = f32::from(u8::from(s));
+    }
+    Ok(plane)
+}
+
 /// Writes, into `dir`: `inputs.npy` `[N, C, H, W]` (the bank's network inputs), `outputs.npy`
-/// `[N, 1, H, W]` (Burn's raw outputs), `solid.npy` `[H, W]` (1 in obstacles), and
+/// `[N, 1, H, W]` (Burn's raw outputs), `solid.npy` `[H, W]` (1 in obstacles and padding; all
+/// on the network's padded canonical grid, [`Surrogate::grid`]), and
 /// `weights/<path>.npy` for every parameter. Returns the number of weight tensors.
 ///
 /// # Errors
@@ -62,12 +74,12 @@ pub fn export_reference(
     sources: &[[f64; 2]],
     dir: &Path,
 ) -> Result<usize> {
-    let [h, w] = model.saved().grid;
+    let [h, w] = model.grid(layout);
     let n = sources.len();
     let chunks = model.inputs(layout, sources)?;
     let mut outputs = Vec::with_capacity(n * h * w);
     for chunk in &chunks {
-        outputs.extend(model.forward_raw(chunk.clone())?);
+        outputs.extend(model.forward_raw(chunk.clone(), [h, w])?);
     }
     let inputs: Vec<f32> = chunks.concat();
     let shaped = |values: Vec<f32>, shape: &[usize]| {
@@ -76,13 +88,10 @@ pub fn export_reference(
     io::create_dir_all(&dir.join("weights"))?;
     io::write_npy(
         &dir.join("inputs.npy"),
-        &shaped(inputs, &[n, INPUT_CHANNELS, h, w])?,
+        &shaped(inputs, &[n, model.channels(), h, w])?,
     )?;
     io::write_npy(&dir.join("outputs.npy"), &shaped(outputs, &[n, 1, h, w])?)?;
-    io::write_npy(
-        &dir.join("solid.npy"),
-        &layout.solid().mapv(|s| f32::from(u8::from(s))),
-    )?;
+    io::write_npy(&dir.join("solid.npy"), &solid_plane(layout, [h, w])?)?;
     let tensors = named_tensors(model.net())?;
     for (name, array) in &tensors {
         io::write_npy(&dir.join("weights").join(format!("{name}.npy")), array)?;
@@ -127,21 +136,20 @@ pub fn time_training(
             "training timing needs a batch and steps of at least 1 and {batch} sources"
         )));
     }
-    let [h, w] = model.saved().grid;
+    let [h, w] = model.grid(layout);
     let device = super::backend::device().autodiff();
     let input = model.inputs(layout, &sources[..batch])?.concat();
-    let target = model.forward_raw(input.clone())?;
-    let free: Vec<f32> = layout
-        .solid()
+    let target = model.forward_raw(input.clone(), [h, w])?;
+    let free: Vec<f32> = solid_plane(layout, [h, w])?
         .iter()
-        .map(|&s| f32::from(u8::from(!s)))
+        .map(|&s| 1.0 - s)
         .collect::<Vec<_>>()
         .repeat(batch);
     let tensor = |values: Vec<f32>, channels: usize| {
         Tensor::<4>::from_data(TensorData::new(values, [batch, channels, h, w]), &device)
     };
     let (x, y, free) = (
-        tensor(input, INPUT_CHANNELS),
+        tensor(input, model.channels()),
         tensor(target, 1),
         tensor(free, 1),
     );

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::data::{Normalization, SourceEncoding};
+use super::data::{InputSet, Normalization, SourceEncoding};
 use super::model::PlumeNetConfig;
 
 /// Everything that defines a training run (saved in `config.json` and the checkpoint).
@@ -29,6 +29,53 @@ pub struct TrainingConfig {
     pub encoding: SourceEncoding,
     /// Input and target scales.
     pub normalization: Normalization,
+    /// Input channels (models from before the any-room change: geometry only).
+    #[serde(default = "legacy_inputs")]
+    pub inputs: InputSet,
+    /// Rooms are padded to multiples of this many cells, in training (so that rooms of nearby
+    /// sizes share a batch) and in inference alike.
+    #[serde(default = "legacy_pad_cells")]
+    pub pad_cells: usize,
+    /// Learning rate over the run.
+    #[serde(default)]
+    pub schedule: LrSchedule,
+}
+
+fn legacy_inputs() -> InputSet {
+    InputSet::Geometry
+}
+
+fn legacy_pad_cells() -> usize {
+    1
+}
+
+/// How the learning rate changes over a run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum LrSchedule {
+    /// The same rate throughout.
+    #[default]
+    Constant,
+    /// Half a cosine from the rate down to `final_fraction` of it at the last epoch, batch by
+    /// batch (a resumed run with more epochs stretches the rest of the curve).
+    Cosine {
+        /// Rate at the end as a fraction of the start.
+        final_fraction: f64,
+    },
+}
+
+impl LrSchedule {
+    /// The rate after `progress` (0 at the start, 1 at the end) of a run starting at `rate`.
+    pub fn rate(&self, rate: f64, progress: f64) -> f64 {
+        match *self {
+            LrSchedule::Constant => rate,
+            LrSchedule::Cosine { final_fraction } => {
+                let p = progress.clamp(0.0, 1.0);
+                let shape = 0.5 * (1.0 + (std::f64::consts::PI * p).cos());
+                rate * (final_fraction + (1.0 - final_fraction) * shape)
+            }
+        }
+    }
 }
 
 impl Default for TrainingConfig {
@@ -44,6 +91,11 @@ impl Default for TrainingConfig {
             seed: 0,
             encoding: SourceEncoding::default(),
             normalization: Normalization::default(),
+            inputs: InputSet::default(),
+            pad_cells: 32,
+            schedule: LrSchedule::Cosine {
+                final_fraction: 0.02,
+            },
         }
     }
 }
@@ -57,6 +109,13 @@ pub struct EpochLoss {
     pub train: f64,
     /// Validation loss (unseen layouts).
     pub validation: f64,
+    /// Validation loss per room size class ([`super::data::SIZE_CLASSES`]; `None` for a class
+    /// without validation layouts), absent in models from before the any-room change.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_by_size: Option<[Option<f64>; 3]>,
+    /// Seconds the epoch took (training and validation).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seconds: Option<f64>,
 }
 
 /// Progress of a run, saved in the checkpoint.

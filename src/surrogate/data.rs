@@ -1,25 +1,37 @@
-//! From dataset arrays to network tensors: input encoding, target transform, batches.
+//! From layouts and dataset arrays to network tensors: input encoding, target transform,
+//! padding and batches.
 //!
-//! **Inputs** (`[B, 3, H, W]`): the obstacle mask (1 in obstacles), the signed distance divided
-//! by `sdf_scale_m`, and the source encoding ([`SourceEncoding`]), computed from the source
-//! coordinates so every encoding can be tried on one dataset.
+//! **Inputs** (`[B, C, H, W]`, [`InputSet`]): the obstacle mask (1 in obstacles), the signed
+//! distance divided by `sdf_scale_m`, the source encoding ([`SourceEncoding`], computed from the
+//! source coordinates so every encoding can be tried on one dataset), then, for
+//! [`InputSet::Physics`] and [`InputSet::Wind`], the room's cell Peclet number `U dx / D`
+//! (a constant plane inside the room) and, for [`InputSet::Wind`], the solved wind `u / U` and
+//! `v / U` at cell centres. The network always sees a room in its canonical frame (wind from the
+//! west, [`crate::frame`]), padded with zeros on the east and north sides to a multiple of
+//! `pad_cells` cells; zero in every channel means "outside the room", which the Peclet plane
+//! tells apart from a free cell.
 //!
-//! **Target transform.** The network learns `y = ln(1 + c / concentration_scale)`, which tames
-//! the four decades between the source and the far field; predictions are mapped back with
-//! `c = concentration_scale * (exp(max(y, 0)) - 1)` (non-negative) and set to zero in obstacles.
+//! **Target transform.** The network learns `y = ln(1 + c f / concentration_scale)` with
+//! `f = U / reference_speed_mps` (a faster wind dilutes a source of the same strength, so `c U`
+//! varies less across rooms than `c`), which tames the four decades between the source and the
+//! far field; predictions are mapped back with `c = concentration_scale * (exp(max(y, 0)) - 1)
+//! / f` (non-negative) and set to zero in obstacles. Models from before the any-room change have
+//! no reference speed (`f = 1`).
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use burn::prelude::*;
-use ndarray::{Array3, ArrayView2, Ix1, Ix2, Ix3};
+use ndarray::{Array2, ArrayView2, Ix1, Ix2, IxDyn};
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::Manifest;
+use crate::dataset::{Manifest, grid_of};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::io;
 use crate::io::sha256_hex;
-use crate::layout::Layout;
+use crate::layout::{Layout, LayoutSpec};
+use crate::physics::wind::WindField;
 
 /// How the source position is given to the network.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -32,13 +44,46 @@ pub enum SourceEncoding {
     Distance,
 }
 
+/// Which input channels the network gets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum InputSet {
+    /// Mask, signed distance, source (models from before the any-room change: one room only).
+    Geometry,
+    /// Geometry plus the cell Peclet number plane.
+    Physics,
+    /// Physics plus the solved wind `u / U`, `v / U` (the wind solve counts in the bank time;
+    /// the default: it gave the lowest validation loss in the README's ablation).
+    #[default]
+    Wind,
+}
+
+impl InputSet {
+    /// Number of input channels.
+    pub fn channels(self) -> usize {
+        match self {
+            InputSet::Geometry => 3,
+            InputSet::Physics => 4,
+            InputSet::Wind => 6,
+        }
+    }
+
+    /// Whether the inputs need the solved wind.
+    pub fn needs_wind(self) -> bool {
+        self == InputSet::Wind
+    }
+}
+
 /// Scales of the input and target transforms (saved in `config.json`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Normalization {
     /// The signed distance is divided by this (m).
     pub sdf_scale_m: f32,
-    /// `y = ln(1 + c / concentration_scale)`.
+    /// `y = ln(1 + c f / concentration_scale)`.
     pub concentration_scale: f32,
+    /// `f = U / reference_speed_mps`; absent (`f = 1`) in models from before the any-room change.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_speed_mps: Option<f32>,
 }
 
 impl Default for Normalization {
@@ -46,142 +91,362 @@ impl Default for Normalization {
         Self {
             sdf_scale_m: 1.0,
             concentration_scale: 0.01,
+            reference_speed_mps: Some(0.75),
         }
     }
 }
 
 impl Normalization {
-    /// Concentration to network target.
-    pub fn forward(&self, c: f32) -> f32 {
-        (c.max(0.0) / self.concentration_scale).ln_1p()
+    fn factor(&self, speed_mps: f64) -> f32 {
+        self.reference_speed_mps
+            .map_or(1.0, |r| (speed_mps / f64::from(r)) as f32)
     }
 
-    /// Network output to concentration (non-negative).
-    pub fn inverse(&self, y: f32) -> f32 {
-        self.concentration_scale * y.max(0.0).exp_m1()
+    /// Concentration in wind of `speed_mps` to network target.
+    pub fn forward(&self, c: f32, speed_mps: f64) -> f32 {
+        (c.max(0.0) * self.factor(speed_mps) / self.concentration_scale).ln_1p()
+    }
+
+    /// Network output to concentration (non-negative) in wind of `speed_mps`.
+    pub fn inverse(&self, y: f32, speed_mps: f64) -> f32 {
+        self.concentration_scale * y.max(0.0).exp_m1() / self.factor(speed_mps)
     }
 }
 
-/// Number of input channels.
-pub const INPUT_CHANNELS: usize = 3;
+/// `(h, w)` rounded up to multiples of `multiple`.
+pub fn padded_shape((h, w): (usize, usize), multiple: usize) -> (usize, usize) {
+    let m = multiple.max(1);
+    (h.div_ceil(m) * m, w.div_ceil(m) * m)
+}
 
-/// Writes the `3 x H x W` input channels of one sample into `out`.
-pub fn encode_input(
-    mask: ArrayView2<f32>,
-    sdf: ArrayView2<f32>,
-    [sx, sy]: [f64; 2],
-    cell: f64,
-    encoding: SourceEncoding,
-    norm: &Normalization,
-    out: &mut [f32],
-) {
-    let (h, w) = mask.dim();
-    let plane = h * w;
-    let height = h as f64 * cell;
-    for ((j, i), &m) in mask.indexed_iter() {
-        let k = j * w + i;
-        out[k] = m;
-        out[plane + k] = sdf[[j, i]] / norm.sdf_scale_m;
-        let (x, y) = ((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
-        let d2 = (x - sx).powi(2) + (y - sy).powi(2);
-        out[2 * plane + k] = match encoding {
-            SourceEncoding::Gaussian => (-d2 / (2.0 * cell * cell)).exp() as f32,
-            SourceEncoding::Distance => (d2.sqrt() / height) as f32,
+/// One room as the network sees it: its canonical planes and physics.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RoomPlanes {
+    /// 1 in obstacle cells, `[H, W]`.
+    pub mask: Array2<f32>,
+    /// Signed distance (m), `[H, W]`.
+    pub sdf: Array2<f32>,
+    /// Solved wind `u / U` and `v / U` at cell centres (canonical components), when known.
+    pub wind: Option<[Array2<f32>; 2]>,
+    /// Cell size (m).
+    pub cell_m: f64,
+    /// Inlet wind speed (m/s).
+    pub speed_mps: f64,
+    /// Cell Peclet number `U dx / D`.
+    pub peclet: f64,
+}
+
+impl RoomPlanes {
+    /// The planes of a canonical layout (wind from the west), with its solved wind if given.
+    pub fn new(canonical: &Layout, wind: Option<&WindField>) -> Self {
+        let speed = canonical.wind_speed();
+        Self {
+            mask: canonical.solid().mapv(|s| f32::from(u8::from(s))),
+            sdf: canonical.signed_distance().mapv(|d| d as f32),
+            wind: wind.map(|w| {
+                let c = w.centred();
+                let plane = |k: usize| {
+                    c.index_axis(ndarray::Axis(0), k)
+                        .mapv(|v| (v / speed) as f32)
+                };
+                [plane(0), plane(1)]
+            }),
+            cell_m: canonical.cell(),
+            speed_mps: speed,
+            peclet: speed * canonical.cell() / canonical.diffusivity(),
+        }
+    }
+
+    /// Grid `(H, W)`.
+    pub fn shape(&self) -> (usize, usize) {
+        self.mask.dim()
+    }
+
+    /// Writes the input channels of a source at canonical `[sx, sy]` into `out`, a zeroed buffer
+    /// of `inputs.channels()` planes of `padded` shape (the room in its south-west corner).
+    ///
+    /// # Errors
+    /// [`Error::Model`] when the inputs need the wind and the room has none.
+    pub fn encode(
+        &self,
+        [sx, sy]: [f64; 2],
+        inputs: InputSet,
+        encoding: SourceEncoding,
+        norm: &Normalization,
+        (hp, wp): (usize, usize),
+        out: &mut [f32],
+    ) -> Result<()> {
+        let h = self.shape().0;
+        let plane = hp * wp;
+        let cell = self.cell_m;
+        let height = h as f64 * cell;
+        let wind = match (inputs.needs_wind(), &self.wind) {
+            (true, None) => {
+                return Err(Error::Model(
+                    "these inputs need the solved wind, which was not given".into(),
+                ));
+            }
+            (true, Some(wind)) => Some(wind),
+            (false, _) => None,
         };
+        for ((j, i), &m) in self.mask.indexed_iter() {
+            let k = j * wp + i;
+            out[k] = m;
+            out[plane + k] = self.sdf[[j, i]] / norm.sdf_scale_m;
+            let (x, y) = ((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
+            let d2 = (x - sx).powi(2) + (y - sy).powi(2);
+            out[2 * plane + k] = match encoding {
+                SourceEncoding::Gaussian => (-d2 / (2.0 * cell * cell)).exp() as f32,
+                SourceEncoding::Distance => (d2.sqrt() / height) as f32,
+            };
+            if inputs != InputSet::Geometry {
+                out[3 * plane + k] = self.peclet as f32;
+            }
+            if let Some([u, v]) = wind {
+                out[4 * plane + k] = u[[j, i]];
+                out[5 * plane + k] = v[[j, i]];
+            }
+        }
+        Ok(())
     }
 }
 
-/// Obstacle mask and scaled-free signed distance of a layout, as the network sees them.
-pub fn layout_planes(layout: &Layout) -> (ndarray::Array2<f32>, ndarray::Array2<f32>) {
-    (
-        layout.solid().mapv(|s| f32::from(u8::from(s))),
-        layout.signed_distance().mapv(|d| d as f32),
-    )
+/// Room size classes for per-class reports: a name and the largest floor area (m^2) of the class.
+pub const SIZE_CLASSES: [(&str, f64); 3] = [
+    ("small (up to 60 m2)", 60.0),
+    ("medium (60 to 150 m2)", 150.0),
+    ("large (over 150 m2)", f64::INFINITY),
+];
+
+/// Index of the [`SIZE_CLASSES`] entry of a layout.
+pub fn size_class(layout: &Layout) -> usize {
+    let area = layout.width() * layout.height();
+    SIZE_CLASSES
+        .iter()
+        .position(|(_, max)| area <= *max + 1e-9)
+        .unwrap_or(SIZE_CLASSES.len() - 1)
 }
 
-/// A dataset held in memory for training and evaluation, in the canonical frame of its base
-/// layout ([`crate::frame`]: turned so that the wind comes from the west, as the network sees
-/// every layout).
+/// Ranges of room physics seen in training, checked before a model is used (`config.json`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainedRanges {
+    /// The one cell size (m).
+    pub cell_m: f64,
+    /// Room length along the wind (m), `[min, max]`.
+    pub length_m: [f64; 2],
+    /// Room width across the wind (m), `[min, max]`.
+    pub across_m: [f64; 2],
+    /// Inlet wind speed (m/s), `[min, max]`.
+    pub speed_mps: [f64; 2],
+    /// Effective gas diffusivity (m^2/s), `[min, max]`.
+    pub diffusivity_m2ps: [f64; 2],
+    /// Effective eddy viscosity (m^2/s), `[min, max]`.
+    pub eddy_viscosity_m2ps: [f64; 2],
+}
+
+impl TrainedRanges {
+    /// The ranges spanned by `layouts` (none empty).
+    fn of(layouts: &[Layout]) -> Self {
+        let span = |f: &dyn Fn(&Layout) -> f64| {
+            layouts
+                .iter()
+                .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], l| {
+                    let v = f(l);
+                    [lo.min(v), hi.max(v)]
+                })
+        };
+        let canonical = |l: &Layout| {
+            let turned = Frame::of(l).swaps_sides();
+            if turned {
+                (l.height(), l.width())
+            } else {
+                (l.width(), l.height())
+            }
+        };
+        Self {
+            cell_m: layouts.first().map_or(0.0, Layout::cell),
+            length_m: span(&|l| canonical(l).0),
+            across_m: span(&|l| canonical(l).1),
+            speed_mps: span(&Layout::wind_speed),
+            diffusivity_m2ps: span(&Layout::diffusivity),
+            eddy_viscosity_m2ps: span(&Layout::eddy_viscosity),
+        }
+    }
+
+    /// Checks a layout against the ranges.
+    ///
+    /// # Errors
+    /// [`Error::Model`] naming the quantity, its value and the trained range.
+    pub fn check(&self, layout: &Layout) -> Result<()> {
+        let frame = Frame::of(layout);
+        let (length, across) = if frame.swaps_sides() {
+            (layout.height(), layout.width())
+        } else {
+            (layout.width(), layout.height())
+        };
+        if (layout.cell() - self.cell_m).abs() > 1e-9 {
+            return Err(Error::Model(format!(
+                "the layout's cell_m = {} m differs from the {} m cells the model was trained on",
+                layout.cell(),
+                self.cell_m
+            )));
+        }
+        let quantities = [
+            ("room length along the wind (m)", length, self.length_m),
+            ("room width across the wind (m)", across, self.across_m),
+            ("wind speed (m/s)", layout.wind_speed(), self.speed_mps),
+            (
+                "diffusivity_m2ps",
+                layout.diffusivity(),
+                self.diffusivity_m2ps,
+            ),
+            (
+                "eddy_viscosity_m2ps",
+                layout.eddy_viscosity(),
+                self.eddy_viscosity_m2ps,
+            ),
+        ];
+        for (name, value, [lo, hi]) in quantities {
+            let tol = 1e-9 * hi.abs().max(1.0);
+            if value < lo - tol || value > hi + tol {
+                return Err(Error::Model(format!(
+                    "the layout's {name} is {value}, outside the trained range [{lo}, {hi}]"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A dataset held in memory for training and evaluation, every layout in its canonical frame
+/// ([`crate::frame`]: turned so that the wind comes from the west, as the network sees it).
 #[derive(Debug, Clone)]
 pub struct TrainingData {
     /// The dataset's manifest.
     pub manifest: Manifest,
     /// SHA-256 of `manifest.json`, recorded with a trained model.
     pub digest: String,
-    masks: Array3<f32>,
-    sdf: Array3<f32>,
+    /// The layouts (real frame), checked.
+    layouts: Vec<Layout>,
+    rooms: Vec<RoomPlanes>,
     /// Layout index of each sample.
     pub source_layout: Vec<usize>,
-    /// Source position of each sample (m).
+    /// Source position of each sample (m, canonical frame).
     pub source_xy: Vec<[f64; 2]>,
-    /// Target concentrations `[S, H, W]`.
-    pub concentration: Array3<f32>,
-    /// Canonical grid `[H, W]`.
-    grid: [usize; 2],
+    /// Target concentrations, canonical `[H, W]` per sample.
+    concentration: Vec<Array2<f32>>,
 }
 
 impl TrainingData {
     /// Loads a complete dataset directory.
     ///
     /// # Errors
-    /// Any error of [`Manifest::load`]; [`Error::Dataset`] for a shard or inconsistent indices.
+    /// Any error of [`Manifest::load`]; [`Error::Dataset`] for a shard, an invalid layout,
+    /// inconsistent indices or non-finite values.
     pub fn load(dir: &Path) -> Result<Self> {
         let manifest = Manifest::load(dir)?;
+        let bad = |m: String| Error::Dataset(format!("{}: {m}", dir.display()));
         if manifest.shard.is_some() {
-            return Err(Error::Dataset(format!(
-                "{} is one shard; merge the shards first (plumenet merge)",
-                dir.display()
-            )));
+            return Err(bad(
+                "this is one shard; merge the shards first (plumenet merge)".into(),
+            ));
         }
         let text = io::read_to_string(&dir.join("manifest.json"))?;
         let digest = sha256_hex(text.as_bytes());
-        let masks = io::read_npy::<f32, Ix3>(&dir.join("obstacle_mask.npy"))?;
-        let sdf = io::read_npy::<f32, Ix3>(&dir.join("signed_distance.npy"))?;
+        let flat = |name: &str| io::read_npy::<f32, IxDyn>(&dir.join(format!("{name}.npy")));
+        let masks = flat("obstacle_mask")?;
+        let sdf = flat("signed_distance")?;
+        let wind = flat("wind")?;
+        let concentration = flat("concentration")?;
         let owner = io::read_npy::<u32, Ix1>(&dir.join("source_layout.npy"))?;
         let xy = io::read_npy::<f32, Ix2>(&dir.join("source_xy.npy"))?;
-        let concentration = io::read_npy::<f32, Ix3>(&dir.join("concentration.npy"))?;
-        let layouts = masks.dim().0;
-        if owner.iter().any(|&k| k as usize >= layouts) || xy.nrows() != owner.len() {
-            return Err(Error::Dataset(format!(
-                "{}: source indices do not match the layouts",
-                dir.display()
-            )));
+        if concentration
+            .iter()
+            .chain(wind.iter())
+            .any(|c| !c.is_finite())
+        {
+            return Err(bad(
+                "concentration.npy or wind.npy holds NaN or infinity".into()
+            ));
         }
-        if concentration.iter().any(|c| !c.is_finite()) {
-            return Err(Error::Dataset(format!(
-                "{}: concentration.npy holds NaN or infinity",
-                dir.display()
-            )));
+        let (masks, sdf, wind, concentration) = (
+            masks.as_slice().unwrap_or_default(),
+            sdf.as_slice().unwrap_or_default(),
+            wind.as_slice().unwrap_or_default(),
+            concentration.as_slice().unwrap_or_default(),
+        );
+        let mut layouts = Vec::with_capacity(manifest.layouts.len());
+        let mut rooms = Vec::with_capacity(manifest.layouts.len());
+        let mut starts = Vec::with_capacity(manifest.layouts.len());
+        let mut offset = 0;
+        for (k, spec) in manifest.layouts.iter().enumerate() {
+            let layout =
+                LayoutSpec::check(spec.clone()).map_err(|e| bad(format!("layout {k}: {e}")))?;
+            let (h, w) = grid_of(spec);
+            let frame = Frame::of(&layout);
+            let planes = |v: &[f32]| Array2::from_shape_vec((h, w), v.to_vec());
+            let cells = offset..offset + h * w;
+            let (Ok(mask), Ok(dist)) = (planes(&masks[cells.clone()]), planes(&sdf[cells])) else {
+                return Err(bad(format!("layout {k}: arrays too short")));
+            };
+            let speed = layout.wind_speed();
+            let (Ok(u), Ok(v)) = (
+                planes(&wind[2 * offset..2 * offset + h * w]),
+                planes(&wind[2 * offset + h * w..2 * offset + 2 * h * w]),
+            ) else {
+                return Err(bad(format!("layout {k}: wind too short")));
+            };
+            let canonical = frame.layout_to_canonical(&layout)?;
+            let turned = |a: &Array2<f32>| frame.cells_to_canonical(a.view());
+            let mut uc = Array2::zeros(frame.canonical_shape());
+            let mut vc = Array2::zeros(frame.canonical_shape());
+            for ((j, i), &uv) in u.indexed_iter() {
+                let (a, b) = frame.vector_to_canonical(f64::from(uv), f64::from(v[[j, i]]));
+                let jc = frame.cell_to_canonical(j, i);
+                uc[jc] = (a / speed) as f32;
+                vc[jc] = (b / speed) as f32;
+            }
+            rooms.push(RoomPlanes {
+                mask: turned(&mask),
+                sdf: turned(&dist),
+                wind: Some([uc, vc]),
+                ..RoomPlanes::new(&canonical, None)
+            });
+            layouts.push(layout);
+            starts.push(offset);
+            offset += h * w;
         }
-        let base = &manifest.base;
-        let [ny, nx] = manifest.grid;
-        let frame = Frame::new(base.wind.from, [base.width_m, base.height_m], [nx, ny]);
-        let (hc, wc) = frame.canonical_shape();
-        let turn = |a: Array3<f32>| -> Array3<f32> {
-            if frame.is_identity() {
-                return a;
+        let mut samples = Vec::with_capacity(owner.len());
+        let mut fields = Vec::with_capacity(owner.len());
+        let mut at = 0;
+        for (s, &k) in owner.iter().enumerate() {
+            let l = k as usize;
+            if l >= layouts.len() {
+                return Err(bad(format!(
+                    "source {s} names layout {k}, which is not listed"
+                )));
             }
-            let mut out = Array3::zeros((a.dim().0, hc, wc));
-            for (mut dst, src) in out.outer_iter_mut().zip(a.outer_iter()) {
-                dst.assign(&frame.cells_to_canonical(src));
-            }
-            out
-        };
+            let layout = &layouts[l];
+            let frame = Frame::of(layout);
+            let (h, w) = layout.shape();
+            let field = concentration
+                .get(at..at + h * w)
+                .and_then(|v| Array2::from_shape_vec((h, w), v.to_vec()).ok())
+                .ok_or_else(|| bad("concentration.npy is too short for its sources".into()))?;
+            at += h * w;
+            fields.push(frame.cells_to_canonical(field.view()));
+            let (x, y) = frame.to_canonical(f64::from(xy[[s, 0]]), f64::from(xy[[s, 1]]));
+            samples.push((l, [x, y]));
+        }
         Ok(Self {
-            digest,
-            masks: turn(masks),
-            sdf: turn(sdf),
-            source_layout: owner.iter().map(|&k| k as usize).collect(),
-            source_xy: xy
-                .outer_iter()
-                .map(|r| {
-                    let (x, y) = frame.to_canonical(f64::from(r[0]), f64::from(r[1]));
-                    [x, y]
-                })
-                .collect(),
-            concentration: turn(concentration),
             manifest,
-            grid: [hc, wc],
+            digest,
+            layouts,
+            rooms,
+            source_layout: samples.iter().map(|s| s.0).collect(),
+            source_xy: samples.iter().map(|s| s.1).collect(),
+            concentration: fields,
         })
     }
 
@@ -195,26 +460,30 @@ impl TrainingData {
         self.source_layout.is_empty()
     }
 
-    /// Grid `[H, W]` (canonical: the base layout turned so that the wind comes from the west).
-    pub fn grid(&self) -> [usize; 2] {
-        self.grid
+    /// The layouts (real frame).
+    pub fn layouts(&self) -> &[Layout] {
+        &self.layouts
     }
 
-    /// Cell size (m).
-    pub fn cell(&self) -> f64 {
-        self.manifest.base.cell_m
+    /// The canonical planes of layout `l`.
+    pub fn room(&self, l: usize) -> &RoomPlanes {
+        &self.rooms[l]
     }
 
-    /// Obstacle mask `[H, W]` of sample `s`.
-    pub fn mask(&self, s: usize) -> ArrayView2<'_, f32> {
-        self.masks
-            .index_axis(ndarray::Axis(0), self.source_layout[s])
+    /// Target concentration of sample `s` (canonical frame).
+    pub fn concentration(&self, s: usize) -> ArrayView2<'_, f32> {
+        self.concentration[s].view()
+    }
+
+    /// The ranges of room physics in this dataset.
+    pub fn ranges(&self) -> TrainedRanges {
+        TrainedRanges::of(&self.layouts)
     }
 
     /// Splits samples by layout: the last `ceil(fraction * L)` layouts (at least one when there
     /// are two or more) are for validation, so validation measures unseen layouts.
     pub fn split_by_layout(&self, fraction: f64) -> (Vec<usize>, Vec<usize>) {
-        let layouts = self.masks.dim().0;
+        let layouts = self.rooms.len();
         let held = if layouts < 2 {
             0
         } else {
@@ -224,40 +493,60 @@ impl TrainingData {
         (0..self.len()).partition(|&s| self.source_layout[s] < first_val)
     }
 
-    /// Input, target and free-cell weight tensors `[B, C, H, W]` for the given samples.
+    /// `samples` grouped by their padded canonical grid (padding to multiples of `pad_cells`),
+    /// in grid order, each group in the order given.
+    pub fn buckets(&self, samples: &[usize], pad_cells: usize) -> Vec<Vec<usize>> {
+        let mut groups: BTreeMap<(usize, usize), Vec<usize>> = BTreeMap::new();
+        for &s in samples {
+            let shape = padded_shape(self.rooms[self.source_layout[s]].shape(), pad_cells);
+            groups.entry(shape).or_default().push(s);
+        }
+        groups.into_values().collect()
+    }
+
+    /// Input, target and weight tensors `[B, C, H, W]` for the given samples, padded to the
+    /// largest padded grid among them; the weight is 1 in free cells of the room, 0 elsewhere.
+    ///
+    /// # Errors
+    /// As [`RoomPlanes::encode`].
     pub fn batch(
         &self,
         samples: &[usize],
+        inputs: InputSet,
         encoding: SourceEncoding,
         norm: &Normalization,
+        pad_cells: usize,
         device: &Device,
-    ) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
-        let [h, w] = self.grid();
+    ) -> Result<(Tensor<4>, Tensor<4>, Tensor<4>)> {
+        let (h, w) = samples
+            .iter()
+            .map(|&s| padded_shape(self.rooms[self.source_layout[s]].shape(), pad_cells))
+            .fold((0, 0), |(a, b), (c, d)| (a.max(c), b.max(d)));
         let plane = h * w;
         let b = samples.len();
-        let mut input = vec![0.0f32; b * INPUT_CHANNELS * plane];
+        let channels = inputs.channels();
+        let mut input = vec![0.0f32; b * channels * plane];
         let mut target = vec![0.0f32; b * plane];
         let mut free = vec![0.0f32; b * plane];
         for (n, &s) in samples.iter().enumerate() {
-            let layout = self.source_layout[s];
-            encode_input(
-                self.masks.index_axis(ndarray::Axis(0), layout),
-                self.sdf.index_axis(ndarray::Axis(0), layout),
+            let room = &self.rooms[self.source_layout[s]];
+            room.encode(
                 self.source_xy[s],
-                self.cell(),
+                inputs,
                 encoding,
                 norm,
-                &mut input[n * INPUT_CHANNELS * plane..(n + 1) * INPUT_CHANNELS * plane],
-            );
-            let c = self.concentration.index_axis(ndarray::Axis(0), s);
-            for (k, (&cv, &m)) in c.iter().zip(self.mask(s).iter()).enumerate() {
-                target[n * plane + k] = norm.forward(cv);
-                free[n * plane + k] = 1.0 - m;
+                (h, w),
+                &mut input[n * channels * plane..(n + 1) * channels * plane],
+            )?;
+            for (((j, i), &c), &m) in self.concentration[s].indexed_iter().zip(room.mask.iter()) {
+                let k = n * plane + j * w + i;
+                target[k] = norm.forward(c, room.speed_mps);
+                free[k] = 1.0 - m;
             }
         }
         let t = |v: Vec<f32>, c: usize| {
             Tensor::<4>::from_data(TensorData::new(v, [b, c, h, w]), device)
         };
-        (t(input, INPUT_CHANNELS), t(target, 1), t(free, 1))
+        Ok((t(input, channels), t(target, 1), t(free, 1)))
     }
 }

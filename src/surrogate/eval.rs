@@ -6,17 +6,19 @@ use rand::seq::index::sample;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::data::TrainingData;
+use super::data::{SIZE_CLASSES, TrainingData, size_class};
 use super::inference::Surrogate;
 use crate::error::{Error, Result};
 use crate::frame::Frame;
-use crate::layout::{Layout, LayoutSpec};
+use crate::layout::Layout;
 
 /// Accuracy of one map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MapScore {
     /// Sample index in the dataset.
     pub sample: usize,
+    /// Layout index in the dataset.
+    pub layout: usize,
     /// `||c_pred - c_true|| / ||c_true||` over free cells.
     pub relative_l2: f64,
     /// Spearman rho between predicted and true values at the sampled points.
@@ -36,6 +38,39 @@ pub struct Summary {
     pub median_spearman: f64,
     /// 10th percentile Spearman rho.
     pub p10_spearman: f64,
+}
+
+/// The summary of one class of maps (a room size class or a wind speed third).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClassSummary {
+    /// The class.
+    pub class: String,
+    /// Its scores; `None` when no map falls in it.
+    pub summary: Option<Summary>,
+}
+
+/// Everything [`evaluate`] reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Evaluation {
+    /// Every map's scores.
+    pub maps: Vec<MapScore>,
+    /// All maps together.
+    pub summary: Summary,
+    /// Per room size class ([`SIZE_CLASSES`]).
+    pub by_size: Vec<ClassSummary>,
+    /// Per third of the wind speed range [`SPEED_THIRDS`].
+    pub by_speed: Vec<ClassSummary>,
+}
+
+/// Bounds (m/s) of the wind speed thirds of the room generator's range.
+pub const SPEED_THIRDS: [f64; 4] = [0.25, 0.25 + 1.25 / 3.0, 0.25 + 2.5 / 3.0, 1.5];
+
+/// Index of the speed third of `speed` (the first or last for speeds outside the range).
+pub fn speed_third(speed: f64) -> usize {
+    SPEED_THIRDS[1..3]
+        .iter()
+        .position(|&b| speed < b)
+        .unwrap_or(2)
 }
 
 /// Ranks with ties sharing their average rank.
@@ -74,28 +109,37 @@ fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
-/// Scores every map of `data` (`points` sampled free cells per map for Spearman, seeded).
+fn summarize(scores: &[&MapScore]) -> Option<Summary> {
+    if scores.is_empty() {
+        return None;
+    }
+    let l2: Vec<f64> = scores.iter().map(|s| s.relative_l2).collect();
+    let rho: Vec<f64> = scores.iter().map(|s| s.spearman).collect();
+    Some(Summary {
+        maps: scores.len(),
+        median_relative_l2: quantile(l2.clone(), 0.5),
+        p90_relative_l2: quantile(l2, 0.9),
+        median_spearman: quantile(rho.clone(), 0.5),
+        p10_spearman: quantile(rho, 0.1),
+    })
+}
+
+/// Scores every map of `data` (`points` sampled free cells per map for Spearman, seeded), with
+/// tables per room size class and per wind speed third.
 ///
 /// # Errors
-/// [`Error::Model`] when the model's grid differs from the dataset's.
+/// [`Error::Model`] when the model does not cover a layout of the dataset, [`Error::Dataset`]
+/// for an empty dataset.
 pub fn evaluate(
     model: &Surrogate,
     data: &TrainingData,
     points: usize,
     seed: u64,
-) -> Result<(Vec<MapScore>, Summary)> {
-    let layouts: Vec<Layout> = data
-        .manifest
-        .layouts
-        .iter()
-        .map(|s: &LayoutSpec| {
-            // The dataset is held in the canonical frame (see `TrainingData`).
-            let real = s.clone().check()?;
-            Frame::of(&real).layout_to_canonical(&real)
-        })
-        .collect::<Result<_>>()?;
+) -> Result<Evaluation> {
     let mut scores = Vec::with_capacity(data.len());
-    for (l, layout) in layouts.iter().enumerate() {
+    for (l, real) in data.layouts().iter().enumerate() {
+        // The dataset is held in the canonical frame (see `TrainingData`).
+        let layout = Frame::of(real).layout_to_canonical(real)?;
         let samples: Vec<usize> = (0..data.len())
             .filter(|&s| data.source_layout[s] == l)
             .collect();
@@ -103,7 +147,7 @@ pub fn evaluate(
             continue;
         }
         let sources: Vec<[f64; 2]> = samples.iter().map(|&s| data.source_xy[s]).collect();
-        let predicted = model.predict_many(layout, &sources)?;
+        let predicted = model.predict_many(&layout, &sources)?;
         let free: Vec<(usize, usize)> = layout
             .solid()
             .indexed_iter()
@@ -111,7 +155,7 @@ pub fn evaluate(
             .map(|(ji, _)| ji)
             .collect();
         for (n, &s) in samples.iter().enumerate() {
-            let truth = data.concentration.index_axis(ndarray::Axis(0), s);
+            let truth = data.concentration(s);
             let pred = predicted.index_axis(ndarray::Axis(0), n);
             let (mut num, mut den) = (0.0, 0.0);
             for &(j, i) in &free {
@@ -130,22 +174,45 @@ pub fn evaluate(
                 .unzip();
             scores.push(MapScore {
                 sample: s,
+                layout: l,
                 relative_l2: (num / den).sqrt(),
                 spearman: spearman(&a, &b),
             });
         }
     }
-    if scores.is_empty() {
-        return Err(Error::Dataset("no map to evaluate".into()));
-    }
-    let l2: Vec<f64> = scores.iter().map(|s| s.relative_l2).collect();
-    let rho: Vec<f64> = scores.iter().map(|s| s.spearman).collect();
-    let summary = Summary {
-        maps: scores.len(),
-        median_relative_l2: quantile(l2.clone(), 0.5),
-        p90_relative_l2: quantile(l2, 0.9),
-        median_spearman: quantile(rho.clone(), 0.5),
-        p10_spearman: quantile(rho, 0.1),
+    let all: Vec<&MapScore> = scores.iter().collect();
+    let summary = summarize(&all).ok_or_else(|| Error::Dataset("no map to evaluate".into()))?;
+    let class_of = |f: &dyn Fn(&Layout) -> usize, names: Vec<String>| -> Vec<ClassSummary> {
+        names
+            .into_iter()
+            .enumerate()
+            .map(|(c, class)| {
+                let members: Vec<&MapScore> = scores
+                    .iter()
+                    .filter(|m| f(&data.layouts()[m.layout]) == c)
+                    .collect();
+                ClassSummary {
+                    class,
+                    summary: summarize(&members),
+                }
+            })
+            .collect()
     };
-    Ok((scores, summary))
+    let by_size = class_of(
+        &size_class,
+        SIZE_CLASSES.iter().map(|(n, _)| n.to_string()).collect(),
+    );
+    let by_speed = class_of(
+        &|l: &Layout| speed_third(l.wind_speed()),
+        SPEED_THIRDS
+            .windows(2)
+            .map(|w| format!("{:.2} to {:.2} m/s", w[0], w[1]))
+            .collect(),
+    );
+    Ok(Evaluation {
+        summary,
+        by_size,
+        by_speed,
+        maps: scores,
+    })
 }

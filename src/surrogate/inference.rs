@@ -5,13 +5,14 @@ use std::path::{Path, PathBuf};
 use burn::prelude::*;
 use ndarray::{Array2, Array3};
 
-use super::data::{INPUT_CHANNELS, encode_input, layout_planes};
+use super::data::{RoomPlanes, padded_shape};
 use super::model::{ConvImpl, PlumeNet};
-use super::saved::SavedModel;
+use super::saved::{LEGACY_MODEL_FORMAT, SavedModel};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::io::sha256_hex;
 use crate::layout::Layout;
+use crate::physics::wind::WindField;
 use crate::plume::{PlumeBank, PlumeModel};
 
 /// Samples per forward pass in a bank (bounds memory: about 40 MB of activations per sample
@@ -55,31 +56,60 @@ impl Surrogate {
         &self.saved
     }
 
-    /// Checks that the model was trained for this layout's grid.
+    /// Checks that the model covers this layout: for an any-room model, its cell size, room
+    /// sides, wind speed and coefficients lie in the trained ranges; for a model from before the
+    /// any-room change, its grid is the one grid the model knows.
     ///
     /// # Errors
-    /// [`Error::Model`] naming both grids.
+    /// [`Error::Model`] naming the quantity, the trained range and how to retrain.
     pub fn check_layout(&self, layout: &Layout) -> Result<()> {
-        let (ny, nx) = Frame::of(layout).canonical_shape();
-        let grid = [ny, nx];
-        if grid != self.saved.grid || (layout.cell() - self.saved.cell_m).abs() > 1e-12 {
-            return Err(Error::Model(format!(
-                "model {} was trained for a {:?} grid of {} m cells; the layout has {:?} cells of {} m (turned so that the wind comes from the west)",
-                self.dir.display(),
-                self.saved.grid,
-                self.saved.cell_m,
-                grid,
-                layout.cell()
-            )));
+        let retrain = "to cover it, generate a dataset of such rooms and train a model on it \
+                       (plumenet generate --out D ...; plumenet train --data D --out models/NAME)";
+        match (&self.saved.ranges, self.saved.grid) {
+            (Some(ranges), _) => ranges
+                .check(layout)
+                .map_err(|e| Error::Model(format!("model {}: {e}; {retrain}", self.dir.display()))),
+            (None, grid) => {
+                let (ny, nx) = Frame::of(layout).canonical_shape();
+                if grid != Some([ny, nx]) || (layout.cell() - self.saved.cell_m).abs() > 1e-12 {
+                    return Err(Error::Model(format!(
+                        "model {} is from before any-room models ({LEGACY_MODEL_FORMAT}) and knows \
+                         only a {:?} grid of {} m cells; the layout has {:?} cells of {} m \
+                         (turned so that the wind comes from the west); {retrain}",
+                        self.dir.display(),
+                        grid.unwrap_or_default(),
+                        self.saved.cell_m,
+                        [ny, nx],
+                        layout.cell()
+                    )));
+                }
+                Ok(())
+            }
         }
-        Ok(())
     }
 
-    /// The network inputs for `sources` in `layout`, `[N, INPUT_CHANNELS, H, W]` row-major,
-    /// computed in chunks of [`BANK_CHUNK`] (what [`Surrogate::predict_many`] feeds the network).
+    /// The padded canonical grid `[H, W]` the network runs on for `layout`.
+    pub fn grid(&self, layout: &Layout) -> [usize; 2] {
+        let (h, w) = padded_shape(
+            Frame::of(layout).canonical_shape(),
+            self.saved.training.pad_cells,
+        );
+        [h, w]
+    }
+
+    /// Input channels of the network.
+    pub fn channels(&self) -> usize {
+        self.saved.architecture.in_channels
+    }
+
+    /// The network inputs for `sources` in `layout`, chunks of at most [`BANK_CHUNK`] samples of
+    /// `[n, channels, H, W]` row-major on the grid [`Surrogate::grid`] (what
+    /// [`Surrogate::predict_many`] feeds the network). Solves the wind first if the inputs need
+    /// it.
     ///
     /// # Errors
-    /// [`Error::Model`] for another grid, [`Error::Source`] for a source outside free space.
+    /// [`Error::Model`] for a layout the model does not cover, [`Error::Source`] for a source
+    /// outside free space, [`Error::Solver`] when the wind cannot be solved.
     pub fn inputs(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Vec<Vec<f32>>> {
         self.check_layout(layout)?;
         for &[x, y] in sources {
@@ -88,44 +118,56 @@ impl Surrogate {
         // The network sees the layout turned so that the wind comes from the west.
         let frame = Frame::of(layout);
         let canonical = frame.layout_to_canonical(layout)?;
-        let plane = layout.nx() * layout.ny();
-        let (mask, sdf) = layout_planes(&canonical);
-        Ok(sources
+        let training = &self.saved.training;
+        let wind = if training.inputs.needs_wind() {
+            Some(WindField::solve(&canonical)?)
+        } else {
+            None
+        };
+        let room = RoomPlanes::new(&canonical, wind.as_ref());
+        let [h, w] = self.grid(layout);
+        let per_sample = self.channels() * h * w;
+        sources
             .chunks(BANK_CHUNK)
             .map(|chunk| {
-                let mut input = vec![0.0f32; chunk.len() * INPUT_CHANNELS * plane];
-                for (slot, &[x, y]) in input.chunks_mut(INPUT_CHANNELS * plane).zip(chunk) {
+                let mut input = vec![0.0f32; chunk.len() * per_sample];
+                for (slot, &[x, y]) in input.chunks_mut(per_sample).zip(chunk) {
                     let (xc, yc) = frame.to_canonical(x, y);
-                    encode_input(
-                        mask.view(),
-                        sdf.view(),
+                    room.encode(
                         [xc, yc],
-                        layout.cell(),
+                        training.inputs,
                         self.saved.encoding,
                         &self.saved.normalization,
+                        (h, w),
                         slot,
-                    );
+                    )?;
                 }
-                input
+                Ok(input)
             })
-            .collect())
+            .collect()
     }
 
-    /// The raw network output (transformed concentration) `[n, 1, H, W]` of `n` encoded inputs.
+    /// The raw network output (transformed concentration) `[n, 1, H, W]` of `n` encoded inputs
+    /// on grid `[H, W]`.
     ///
     /// # Errors
     /// [`Error::Model`] when `input` does not hold whole samples of this grid.
-    pub fn forward_raw(&self, input: Vec<f32>) -> Result<Vec<f32>> {
-        self.forward_raw_with(input, ConvImpl::Own)
+    pub fn forward_raw(&self, input: Vec<f32>, grid: [usize; 2]) -> Result<Vec<f32>> {
+        self.forward_raw_with(input, grid, ConvImpl::Own)
     }
 
     /// [`Surrogate::forward_raw`] with the convolutions run by `imp`.
     ///
     /// # Errors
     /// As [`Surrogate::forward_raw`].
-    pub fn forward_raw_with(&self, input: Vec<f32>, imp: ConvImpl) -> Result<Vec<f32>> {
-        let [h, w] = self.saved.grid;
-        let per_sample = INPUT_CHANNELS * h * w;
+    pub fn forward_raw_with(
+        &self,
+        input: Vec<f32>,
+        [h, w]: [usize; 2],
+        imp: ConvImpl,
+    ) -> Result<Vec<f32>> {
+        let channels = self.channels();
+        let per_sample = channels * h * w;
         if input.is_empty() || input.len() % per_sample != 0 {
             return Err(Error::Model(format!(
                 "{} input values are not whole samples of {per_sample}",
@@ -133,10 +175,7 @@ impl Surrogate {
             )));
         }
         let n = input.len() / per_sample;
-        let x = Tensor::<4>::from_data(
-            TensorData::new(input, [n, INPUT_CHANNELS, h, w]),
-            &self.device,
-        );
+        let x = Tensor::<4>::from_data(TensorData::new(input, [n, channels, h, w]), &self.device);
         self.net
             .forward_with(x, imp)
             .into_data()
@@ -148,7 +187,7 @@ impl Surrogate {
     /// [`BANK_CHUNK`] samples.
     ///
     /// # Errors
-    /// [`Error::Model`] for another grid, [`Error::Source`] for a source outside free space.
+    /// As [`Surrogate::inputs`].
     pub fn predict_many(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Array3<f32>> {
         self.predict_many_with(layout, sources, ConvImpl::Own)
     }
@@ -165,21 +204,26 @@ impl Surrogate {
     ) -> Result<Array3<f32>> {
         let (h, w) = layout.shape();
         let frame = Frame::of(layout);
-        let (hc, wc) = frame.canonical_shape();
+        let grid = self.grid(layout);
         let solid = layout.solid();
         let norm = self.saved.normalization;
+        let speed = layout.wind_speed();
         let mut out = Array3::<f32>::zeros((sources.len(), h, w));
         let chunks = self.inputs(layout, sources)?;
         for (input, mut fields) in chunks
             .into_iter()
             .zip(out.axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK))
         {
-            // Canonical outputs `[n, 1, hc, wc]`, turned back cell by cell.
-            let values = self.forward_raw_with(input, imp)?;
+            // Canonical padded outputs `[n, 1, H', W']`, turned back cell by cell.
+            let values = self.forward_raw_with(input, grid, imp)?;
             for ((n, j, i), slot) in fields.indexed_iter_mut() {
                 let (jc, ic) = frame.cell_to_canonical(j, i);
-                let v = values[(n * hc + jc) * wc + ic];
-                *slot = if solid[[j, i]] { 0.0 } else { norm.inverse(v) };
+                let v = values[(n * grid[0] + jc) * grid[1] + ic];
+                *slot = if solid[[j, i]] {
+                    0.0
+                } else {
+                    norm.inverse(v, speed)
+                };
             }
         }
         Ok(out)

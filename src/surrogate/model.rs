@@ -20,11 +20,12 @@ use super::conv::{burn_conv2d_same, conv2d_same};
 /// Architecture of PlumeNet (saved in `config.json`).
 #[derive(Config, Debug, PartialEq)]
 pub struct PlumeNetConfig {
-    /// Input channels (mask, signed distance and source; see [`crate::surrogate::SourceEncoding`]).
-    #[config(default = 3)]
+    /// Input channels ([`crate::surrogate::data::InputSet::channels`]).
+    #[config(default = 6)]
     pub in_channels: usize,
-    /// Channels per level, shallow to deep (DeepCFD: `[8, 16, 32, 32]`).
-    #[config(default = "vec![8, 16, 32, 32]")]
+    /// Channels per level, shallow to deep (DeepCFD: `[8, 16, 32, 32]`; one level more here,
+    /// so that the receptive field spans a 30 m room: about 460 cells with 5x5 kernels).
+    #[config(default = "vec![8, 16, 32, 32, 32]")]
     pub filters: Vec<usize>,
     /// Square kernel size of the convolutions (DeepCFD: 5).
     #[config(default = 5)]

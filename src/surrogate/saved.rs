@@ -12,13 +12,16 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
-use super::data::{Normalization, SourceEncoding, TrainingData};
+use super::data::{Normalization, SourceEncoding, TrainedRanges, TrainingData};
 use super::model::{PlumeNet, PlumeNetConfig};
 use crate::error::{Error, Result};
 use crate::io;
 
 /// Format tag of `config.json`.
-pub const MODEL_FORMAT: &str = "plumenet-model-v1";
+pub const MODEL_FORMAT: &str = "plumenet-model-v2";
+/// Format tag of models from before the any-room change (one grid, geometry inputs), still
+/// loaded for their own grid.
+pub const LEGACY_MODEL_FORMAT: &str = "plumenet-model-v1";
 
 /// `config.json` of a trained model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -28,10 +31,15 @@ pub struct SavedModel {
     pub format: String,
     /// Architecture.
     pub architecture: PlumeNetConfig,
-    /// Grid `[H, W]` the model was trained for.
-    pub grid: [usize; 2],
-    /// Cell size (m) of that grid.
+    /// The one grid `[H, W]` a model from before the any-room change was trained for (absent in
+    /// any-room models, which have `ranges`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<[usize; 2]>,
+    /// Cell size (m).
     pub cell_m: f64,
+    /// Rooms the model was trained on (absent in models from before the any-room change).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ranges: Option<TrainedRanges>,
     /// Source encoding of the inputs.
     pub encoding: SourceEncoding,
     /// Input and target scales.
@@ -55,8 +63,9 @@ impl SavedModel {
         Self {
             format: MODEL_FORMAT.into(),
             architecture: config.model.clone(),
-            grid: data.grid(),
-            cell_m: data.cell(),
+            grid: None,
+            cell_m: data.ranges().cell_m,
+            ranges: Some(data.ranges()),
             encoding: config.encoding,
             normalization: config.normalization,
             dataset_digest: data.digest.clone(),
@@ -89,9 +98,13 @@ impl SavedModel {
     /// format or a weights file that does not match its digest (truncated or replaced).
     pub fn load(dir: &Path, device: &Device) -> Result<(Self, PlumeNet)> {
         let saved: SavedModel = io::read_json(&dir.join("config.json"))?;
-        if saved.format != MODEL_FORMAT {
+        let legacy = saved.format == LEGACY_MODEL_FORMAT;
+        if !(saved.format == MODEL_FORMAT || legacy)
+            || legacy != saved.ranges.is_none()
+            || saved.grid.is_none() && saved.ranges.is_none()
+        {
             return Err(Error::Model(format!(
-                "{}: format {:?} is not {MODEL_FORMAT}",
+                "{}: format {:?} is not {MODEL_FORMAT} (or a consistent {LEGACY_MODEL_FORMAT})",
                 dir.display(),
                 saved.format
             )));

@@ -15,7 +15,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
-use super::data::TrainingData;
+use super::data::{TrainingData, size_class};
 use super::inference::Surrogate;
 use super::model::PlumeNet;
 use super::saved::{SavedModel, load_weights, weights_bytes};
@@ -55,6 +55,17 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
     {
         return bad("filters must be non-empty and positive, and the kernel size odd");
     }
+    if config.model.in_channels != config.inputs.channels() {
+        return Err(Error::Parameter(format!(
+            "the network takes {} input channels but the {:?} inputs have {}",
+            config.model.in_channels,
+            config.inputs,
+            config.inputs.channels()
+        )));
+    }
+    if config.pad_cells == 0 {
+        return bad("pad_cells must be at least 1");
+    }
     if data.len() < 2 {
         return Err(Error::Dataset(
             "a training set needs at least two samples".into(),
@@ -69,22 +80,90 @@ pub(crate) fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) ->
     (pred - target).powi_scalar(2).mul(free).sum().div(count)
 }
 
-/// Validation loss of `model` over `samples` (no gradients).
+/// [`TrainingData::batch`] with the run's inputs, encoding, normalisation and padding.
+fn batch(
+    data: &TrainingData,
+    samples: &[usize],
+    config: &TrainingConfig,
+    device: &Device,
+) -> Result<(Tensor<4>, Tensor<4>, Tensor<4>)> {
+    data.batch(
+        samples,
+        config.inputs,
+        config.encoding,
+        &config.normalization,
+        config.pad_cells,
+        device,
+    )
+}
+
+/// Mean loss of `model` over `samples` (no gradients), in batches of one padded grid.
+fn mean_loss(
+    model: &PlumeNet,
+    data: &TrainingData,
+    samples: &[usize],
+    config: &TrainingConfig,
+    device: &Device,
+) -> Result<(f64, usize)> {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for bucket in data.buckets(samples, config.pad_cells) {
+        for chunk in bucket.chunks(config.batch_size.max(1) * 2) {
+            let (x, y, free) = batch(data, chunk, config, device)?;
+            let loss: f32 = masked_mse(model.forward(x), y, free).into_scalar();
+            sum += f64::from(loss) * chunk.len() as f64;
+            n += chunk.len();
+        }
+    }
+    Ok((sum, n))
+}
+
+/// Validation loss of `model` over `samples` (no gradients): overall and per room size class
+/// ([`super::data::SIZE_CLASSES`]).
+///
+/// # Errors
+/// As [`TrainingData::batch`].
 pub fn evaluate_loss(
     model: &PlumeNet,
     data: &TrainingData,
     samples: &[usize],
     config: &TrainingConfig,
     device: &Device,
-) -> f64 {
+) -> Result<(f64, [Option<f64>; 3])> {
+    let mut by_size = [None; 3];
     let (mut sum, mut n) = (0.0, 0usize);
-    for chunk in samples.chunks(config.batch_size.max(1) * 4) {
-        let (x, y, free) = data.batch(chunk, config.encoding, &config.normalization, device);
-        let loss: f32 = masked_mse(model.forward(x), y, free).into_scalar();
-        sum += f64::from(loss) * chunk.len() as f64;
-        n += chunk.len();
+    for (class, slot) in by_size.iter_mut().enumerate() {
+        let members: Vec<usize> = samples
+            .iter()
+            .copied()
+            .filter(|&s| size_class(&data.layouts()[data.source_layout[s]]) == class)
+            .collect();
+        let (class_sum, count) = mean_loss(model, data, &members, config, device)?;
+        if count > 0 {
+            *slot = Some(class_sum / count as f64);
+        }
+        sum += class_sum;
+        n += count;
     }
-    if n == 0 { f64::NAN } else { sum / n as f64 }
+    Ok((if n == 0 { f64::NAN } else { sum / n as f64 }, by_size))
+}
+
+/// The batches of one epoch: `samples` shuffled, cut into batches of one padded grid, and the
+/// batches shuffled (all from `rng`).
+fn epoch_batches(
+    data: &TrainingData,
+    samples: &[usize],
+    config: &TrainingConfig,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Vec<usize>> {
+    let mut order = samples.to_vec();
+    order.shuffle(rng);
+    let mut batches: Vec<Vec<usize>> = data
+        .buckets(&order, config.pad_cells)
+        .iter()
+        .flat_map(|bucket| bucket.chunks(config.batch_size).map(<[usize]>::to_vec))
+        .collect();
+    batches.shuffle(rng);
+    batches
 }
 
 /// Trains (or resumes training) on `data`, writing the model to `out`.
@@ -155,32 +234,40 @@ pub fn train(
         return Ok(state);
     }
     let first_epoch = state.history.len() + 1;
-    let batches = train_idx.len().div_ceil(config.batch_size);
+    let epoch_rng = |epoch: usize| {
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        rng.set_stream(epoch as u64);
+        rng
+    };
+    let batches = epoch_batches(data, &train_idx, config, &mut epoch_rng(first_epoch)).len();
     progress(TrainEvent::Start {
         epoch: first_epoch,
         batches,
     });
     for epoch in first_epoch..=config.epochs {
-        let mut order = train_idx.clone();
-        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-        rng.set_stream(epoch as u64);
-        order.shuffle(&mut rng);
+        let started = std::time::Instant::now();
+        let batches = epoch_batches(data, &train_idx, config, &mut epoch_rng(epoch));
         let mut sum = 0.0;
-        for chunk in order.chunks(config.batch_size) {
-            let (x, y, free) = data.batch(chunk, config.encoding, &config.normalization, &device);
+        for (b, chunk) in batches.iter().enumerate() {
+            let (x, y, free) = batch(data, chunk, config, &device)?;
             let loss = masked_mse(model.forward(x), y, free);
             let value = f64::from(loss.clone().into_scalar::<f32>());
             let grads = GradientsParams::from_grads(loss.backward(), &model);
-            model = optim.step(config.learning_rate, model, grads);
+            let progress_in_run =
+                ((epoch - 1) as f64 + b as f64 / batches.len() as f64) / config.epochs as f64;
+            let rate = config.schedule.rate(config.learning_rate, progress_in_run);
+            model = optim.step(rate, model, grads);
             sum += value * chunk.len() as f64;
             progress(TrainEvent::Batch(value));
         }
         let valid = model.valid();
-        let validation = evaluate_loss(&valid, data, &val_idx, config, &valid_device);
+        let (validation, by_size) = evaluate_loss(&valid, data, &val_idx, config, &valid_device)?;
         let record = EpochLoss {
             epoch,
             train: sum / train_idx.len() as f64,
             validation,
+            validation_by_size: Some(by_size),
+            seconds: Some(started.elapsed().as_secs_f64()),
         };
         state.history.push(record);
         let improved = state
