@@ -93,7 +93,7 @@ struct TrainArgs {
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,32,32")]
     filters: Vec<usize>,
     /// Peak AdamW learning rate (cosine decay to 2% of it over the epochs).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = 3e-4)]
     learning_rate: f64,
 }
 

@@ -269,6 +269,17 @@ fn damaged_datasets_are_clear_errors() {
     std::fs::write(&conc, &data[..data.len() - 100]).unwrap();
     let err = Manifest::load(tmp.path()).unwrap_err().to_string();
     assert!(err.contains("concentration.npy"), "{err}");
+    // A dataset of the first generator version (one grid, before rooms) asks to be generated
+    // again.
+    let manifest = tmp.path().join("manifest.json");
+    let text = std::fs::read_to_string(&manifest).unwrap();
+    std::fs::write(
+        &manifest,
+        text.replace("\"generator_version\": 2", "\"generator_version\": 1"),
+    )
+    .unwrap();
+    let err = Manifest::load(tmp.path()).unwrap_err().to_string();
+    assert!(err.contains("generate the dataset again"), "{err}");
     std::fs::write(tmp.path().join("manifest.json"), "{ not json").unwrap();
     assert!(Manifest::load(tmp.path()).is_err());
     assert!(Manifest::load(&tmp.path().join("missing")).is_err());
