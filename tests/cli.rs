@@ -462,9 +462,12 @@ fn replay_and_experiment_write_their_reports() {
     );
     let runs = std::fs::read_to_string(dir.join("runs.csv")).unwrap();
     assert_eq!(runs.lines().count(), 1 + 4);
-    assert!(runs.starts_with("feature,sensor,run,seed,source_x"));
+    assert!(runs.starts_with("layout,model,feature,sensor,run,seed,source_x"));
     let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
-    assert!(summary.contains("| rank | sensor-ii | 2 |"), "{summary}");
+    assert!(
+        summary.contains("| wind-tunnel | solver | rank | sensor-ii | 2 |"),
+        "{summary}"
+    );
     assert!(dir.join("boxplots.png").exists());
 }
 

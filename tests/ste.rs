@@ -775,3 +775,78 @@ fn clean_air_ties_group_noise_and_survive_gain_and_offset() {
         assert!((x - y).abs() < 1e-12, "{x} vs {y}");
     }
 }
+
+// ---------------------------------------------------------------- studies
+
+#[test]
+fn downwind_starts_lie_near_the_outlet_whatever_the_wind() {
+    use plumenet::ste::run::{DOWNWIND_BAND_M, StartRule, random_start};
+    let robot = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).robot;
+    for from in ["west", "east", "south", "north"] {
+        let layout = Layout::from_json(&format!(
+            r#"{{"width_m":10,"height_m":6,"cell_m":0.25,"wind":{{"speed_mps":0.5,"from":"{from}"}}}}"#
+        ))
+        .unwrap();
+        for seed in 0..20 {
+            let [x, y] = random_start(&layout, &robot, StartRule::Downwind, seed).unwrap();
+            let to_outlet = match from {
+                "west" => 10.0 - x,
+                "east" => x,
+                "south" => 6.0 - y,
+                _ => y,
+            };
+            assert!(
+                (0.0..=DOWNWIND_BAND_M).contains(&to_outlet),
+                "wind from {from}: start ({x}, {y})"
+            );
+        }
+        // Anywhere-starts reach the far end of the room too.
+        let far = (0..50).any(|seed| {
+            let [x, y] = random_start(&layout, &robot, StartRule::Anywhere, seed).unwrap();
+            match from {
+                "west" => x < 5.0,
+                "east" => x > 5.0,
+                "south" => y < 3.0,
+                _ => y > 3.0,
+            }
+        });
+        assert!(far);
+    }
+}
+
+/// A study's rows name their layout and plume model; two sites with the same world and seed
+/// run the same (paired) runs, and the summary keeps them apart.
+#[test]
+fn studies_are_paired_across_sites_and_summarised_per_site() {
+    use plumenet::ste::experiment::{StudySite, plan_runs, run_study, summarize};
+    use plumenet::ste::run::StartRule;
+    let plan = plan_runs(&[Feature::Value], &[SensorPreset::Calibrated], 2);
+    let run = |model: &str| {
+        let site = StudySite {
+            world: world(),
+            layout: "wind-tunnel",
+            model,
+            start: StartRule::Downwind,
+        };
+        run_study(site, &plan, 7, EpisodeConfig::new, || ()).unwrap()
+    };
+    let (a, b) = (run("plumenet"), run("solver"));
+    for (ra, rb) in a.iter().zip(&b) {
+        assert_eq!(
+            (ra.model.as_str(), rb.model.as_str()),
+            ("plumenet", "solver")
+        );
+        assert_eq!(ra.layout, "wind-tunnel");
+        assert_eq!(
+            (ra.source_x, ra.source_y, ra.start_x, ra.start_y, ra.error_m),
+            (rb.source_x, rb.source_y, rb.start_x, rb.start_y, rb.error_m)
+        );
+        assert!(ra.start_x >= 18.0 - plumenet::ste::run::DOWNWIND_BAND_M);
+    }
+    let rows: Vec<_> = a.into_iter().chain(b).collect();
+    let summary = summarize(&rows);
+    assert_eq!(summary.len(), 2);
+    assert_eq!(summary[0].model, "plumenet");
+    assert_eq!(summary[1].model, "solver");
+    assert!(summary.iter().all(|s| s.runs == 2));
+}

@@ -11,10 +11,11 @@ use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::belief::{BeliefPlot, render_belief, write_episode_pictures};
-use plumenet::report::save_png;
-use plumenet::ste::experiment::{plan_runs, run_study, study_plot, summarize};
+use plumenet::report::boxplot::{group_values, render_boxplots};
+use plumenet::report::{save_png, stack_vertical};
+use plumenet::ste::experiment::{RunRow, StudySite, plan_runs, plot_values, run_study, summarize};
 use plumenet::ste::replay::{read_log, replay};
-use plumenet::ste::run::derive_seed;
+use plumenet::ste::run::{StartRule, derive_seed};
 use plumenet::ste::{
     EpisodeConfig, Feature, PlannerKind, RobotParams, Sampling, SensorPreset, Sigmas, SteParams,
     Termination, World, run_episode,
@@ -47,7 +48,12 @@ impl PlumeArgs {
     /// Loads the layout's world (wind + bank) for the chosen model; also returns the model's
     /// name for reports.
     pub fn world(&self, layout: Layout) -> Result<(World, String)> {
-        let model: Box<dyn PlumeModel> = if self.solver {
+        self.world_of(layout, self.solver)
+    }
+
+    /// [`PlumeArgs::world`] with the physics solver (`solver`) or the chosen PlumeNet model.
+    fn world_of(&self, layout: Layout, solver: bool) -> Result<(World, String)> {
+        let model: Box<dyn PlumeModel> = if solver {
             Box::new(PhysicsSolver)
         } else {
             Box::new(Surrogate::load(&self.model).with_context(|| {
@@ -273,9 +279,12 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let config = a.run.config(a.features.params(feature), a.sensor.into());
     let start = match a.start {
         Some((x, y)) => [x, y],
-        None => {
-            plumenet::ste::run::random_start(&world.layout, &config.robot, derive_seed(a.seed, 4))?
-        }
+        None => plumenet::ste::run::random_start(
+            &world.layout,
+            &config.robot,
+            StartRule::Anywhere,
+            derive_seed(a.seed, 4),
+        )?,
     };
     let episode = run_episode(&world, &config, source, start, a.seed, a.png_dir.is_some())?;
     println!(
@@ -402,9 +411,20 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
 
 #[derive(Debug, Args)]
 pub struct ExperimentArgs {
-    /// Layout JSON file.
-    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
-    layout: PathBuf,
+    /// Layout JSON files, comma-separated: the study runs in each.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "data/layouts/wind-tunnel.json"
+    )]
+    layout: Vec<PathBuf>,
+    /// Where robots start: anywhere free, or within 1.5 m of the outlet (the far downwind end).
+    #[arg(long, value_enum, default_value_t = StartArg::Anywhere)]
+    start: StartArg,
+    /// Also run every run with the physics solver's bank (paired: the same sources, starts and
+    /// noise), beside PlumeNet's.
+    #[arg(long, conflicts_with = "solver")]
+    with_solver: bool,
     /// Runs per feature and sensor (random source and start each).
     #[arg(long, default_value_t = 10)]
     runs: usize,
@@ -428,21 +448,53 @@ pub struct ExperimentArgs {
     run: RunArgs,
 }
 
+/// Where robots start in a study.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum StartArg {
+    /// Anywhere the robot may be.
+    Anywhere,
+    /// Within 1.5 m of the outlet.
+    Downwind,
+}
+
 pub fn experiment(a: ExperimentArgs) -> Result<()> {
-    let layout = Layout::load(&a.layout)?;
-    let (world, _) = a.plume.world(layout)?;
     let features: Vec<Feature> = a.features.iter().map(|&f| f.into()).collect();
     let sensors: Vec<SensorPreset> = a.sensors.iter().map(|&s| s.into()).collect();
     let plan = plan_runs(&features, &sensors, a.runs);
-    let bar = super::progress_bar(plan.len(), "runs");
-    let rows = run_study(
-        &world,
-        &plan,
-        a.seed,
-        |f, s| a.run.config(a.overrides.params(f), s),
-        || bar.inc(1),
-    )?;
-    bar.finish_and_clear();
+    let start = match a.start {
+        StartArg::Anywhere => StartRule::Anywhere,
+        StartArg::Downwind => StartRule::Downwind,
+    };
+    let mut models = vec![a.plume.solver];
+    if a.with_solver {
+        models.push(true);
+    }
+    let mut rows = Vec::new();
+    for path in &a.layout {
+        let layout = Layout::load(path)?;
+        let name = path.file_stem().map_or_else(
+            || path.display().to_string(),
+            |s| s.to_string_lossy().into(),
+        );
+        for &solver in &models {
+            let (world, _) = a.plume.world_of(layout.clone(), solver)?;
+            let bar = super::progress_bar(plan.len(), "runs");
+            let site = StudySite {
+                world: &world,
+                layout: &name,
+                model: if solver { "solver" } else { "plumenet" },
+                start,
+            };
+            rows.extend(run_study(
+                site,
+                &plan,
+                a.seed,
+                |f, s| a.run.config(a.overrides.params(f), s),
+                || bar.inc(1),
+            )?);
+            bar.finish_and_clear();
+        }
+    }
     let summary = summarize(&rows);
     io::write_csv(&a.out.join("runs.csv"), &rows)?;
     io::write_csv(&a.out.join("summary.csv"), &summary)?;
@@ -451,7 +503,14 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         buf.extend_from_slice(table.as_bytes());
         Ok(())
     })?;
-    save_png(&study_plot(&rows), &a.out.join("boxplots.png"))?;
+    let panel = |title: &str, metric: fn(&RunRow) -> f64| {
+        render_boxplots(title, &group_values(&plot_values(&rows, metric)))
+    };
+    let plot = stack_vertical(&[
+        panel("localisation error (m)", |r| r.error_m),
+        panel("iterations", |r| r.iterations as f64),
+    ]);
+    save_png(&plot, &a.out.join("boxplots.png"))?;
     print!("{table}");
     println!("wrote {}", a.out.display());
     Ok(())
@@ -460,11 +519,13 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
 /// The study's summary as a Markdown table.
 fn summary_table(summary: &[plumenet::ste::experiment::SummaryRow]) -> String {
     let mut t = String::from(
-        "| feature | sensor | runs | error mean ± std (m) | median (m) | iterations mean ± std | converged |\n|---|---|---|---|---|---|---|\n",
+        "| layout | model | feature | sensor | runs | error mean ± std (m) | median (m) | iterations mean ± std | converged |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for s in summary {
         t.push_str(&format!(
-            "| {} | {} | {} | {:.2} ± {:.2} | {:.2} | {:.1} ± {:.1} | {:.0}% |\n",
+            "| {} | {} | {} | {} | {} | {:.2} ± {:.2} | {:.2} | {:.1} ± {:.1} | {:.0}% |\n",
+            s.layout,
+            s.model,
             s.feature,
             s.sensor,
             s.runs,

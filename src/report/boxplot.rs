@@ -23,6 +23,30 @@ pub struct BoxGroup {
     pub boxes: Vec<(String, Vec<f64>)>,
 }
 
+/// Box groups from `(group, series, value)` triples: groups and the series within each in the
+/// order they first appear.
+pub fn group_values(values: &[(String, String, f64)]) -> Vec<BoxGroup> {
+    let mut groups: Vec<BoxGroup> = Vec::new();
+    for (group, series, value) in values {
+        let g = match groups.iter().position(|g| &g.label == group) {
+            Some(g) => g,
+            None => {
+                groups.push(BoxGroup {
+                    label: group.clone(),
+                    boxes: Vec::new(),
+                });
+                groups.len() - 1
+            }
+        };
+        let boxes = &mut groups[g].boxes;
+        match boxes.iter_mut().find(|b| &b.0 == series) {
+            Some(b) => b.1.push(*value),
+            None => boxes.push((series.clone(), vec![*value])),
+        }
+    }
+    groups
+}
+
 /// Quartiles by linear interpolation (the "type 7" rule of R and numpy).
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     let pos = q * (sorted.len() - 1) as f64;

@@ -1,27 +1,30 @@
 //! The paper's simulation study: every feature x every sensor x `R` runs with random sources
-//! and robot starts, run in parallel, summarised per feature and sensor.
+//! and robot starts, run in parallel, summarised per layout, plume model, feature and sensor.
 //!
-//! Run `r` of a study with seed `S` uses the run seed `derive_seed(S, r)` for every feature and
-//! sensor: the same source, start, plume and sensor noise, so the comparison is paired. Sources
-//! are uniform over the prior's support (free space at least 0.25 m from walls and obstacles),
-//! starts uniform over the positions the robot may occupy.
+//! Run `r` of a study with seed `S` uses the run seed `derive_seed(S, r)` for every feature,
+//! sensor and plume model: the same source, start, plume and sensor noise, so the comparison is
+//! paired. Sources are uniform over the prior's support (free space at least 0.25 m from walls
+//! and obstacles), starts uniform over the positions the robot may occupy ([`StartRule`]), or
+//! over those near the outlet.
 
-use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::report::boxplot::{BoxGroup, render_boxplots};
-use crate::report::stack_vertical;
+use crate::stats::{mean_std, median};
 use crate::ste::features::Feature;
 use crate::ste::run::{
-    EpisodeConfig, World, derive_seed, random_source, random_start, run_episode,
+    EpisodeConfig, StartRule, World, derive_seed, random_source, random_start, run_episode,
 };
 use crate::ste::sensor::SensorPreset;
 
 /// One run of a study, as a CSV row.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunRow {
+    /// Layout name (its file stem).
+    pub layout: String,
+    /// Plume model of the bank (`plumenet` or `solver`).
+    pub model: String,
     /// Gas feature.
     pub feature: String,
     /// Sensor preset.
@@ -56,9 +59,14 @@ pub struct RunRow {
     pub wall_time_s: f64,
 }
 
-/// Mean and standard deviation of error and iterations of one feature and sensor.
+/// Mean and standard deviation of error and iterations of one layout, plume model, feature and
+/// sensor.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SummaryRow {
+    /// Layout name.
+    pub layout: String,
+    /// Plume model.
+    pub model: String,
     /// Gas feature.
     pub feature: String,
     /// Sensor preset.
@@ -95,24 +103,43 @@ pub fn plan_runs(
         .collect()
 }
 
+/// Where a study runs: the world (layout and bank), its names in the rows, and where robots start.
+#[derive(Debug, Clone, Copy)]
+pub struct StudySite<'a> {
+    /// The layout and its bank.
+    pub world: &'a World,
+    /// Layout name for the rows.
+    pub layout: &'a str,
+    /// Plume model name for the rows.
+    pub model: &'a str,
+    /// Where robots start.
+    pub start: StartRule,
+}
+
 /// Runs every planned run in parallel; `configure` gives the settings of a feature and sensor,
 /// and `done` is called after each run (for a progress bar). Rows come back in plan order.
 ///
 /// # Errors
 /// The first run's error, if any fails.
 pub fn run_study(
-    world: &World,
+    site: StudySite<'_>,
     plan: &[(Feature, SensorPreset, usize)],
     seed: u64,
     configure: impl Fn(Feature, SensorPreset) -> EpisodeConfig + Sync,
     done: impl Fn() + Sync,
 ) -> Result<Vec<RunRow>> {
+    let world = site.world;
     plan.par_iter()
         .map(|&(feature, sensor, run)| {
             let config = configure(feature, sensor);
             let run_seed = derive_seed(seed, run as u64);
             let source = random_source(&world.layout, derive_seed(run_seed, 10))?;
-            let start = random_start(&world.layout, &config.robot, derive_seed(run_seed, 11))?;
+            let start = random_start(
+                &world.layout,
+                &config.robot,
+                site.start,
+                derive_seed(run_seed, 11),
+            )?;
             let ep = run_episode(world, &config, source, start, run_seed, false)?;
             done();
             let distance_m = ep
@@ -121,6 +148,8 @@ pub fn run_study(
                 .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
                 .sum();
             Ok(RunRow {
+                layout: site.layout.into(),
+                model: site.model.into(),
                 feature: feature.name().into(),
                 sensor: sensor.name().into(),
                 run,
@@ -142,51 +171,38 @@ pub fn run_study(
         .collect()
 }
 
-fn mean_std(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    (mean, var.sqrt())
-}
-
-/// Median of a slice (NaN-free).
-pub fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
-
-/// Summary per feature and sensor, in the order they first appear in `rows`.
+/// Summary per layout, plume model, feature and sensor, in the order they first appear in
+/// `rows`.
 pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
-    let mut groups: Vec<(String, String)> = Vec::new();
+    let key = |r: &RunRow| {
+        (
+            r.layout.clone(),
+            r.model.clone(),
+            r.feature.clone(),
+            r.sensor.clone(),
+        )
+    };
+    let mut groups = Vec::new();
     for r in rows {
-        let key = (r.feature.clone(), r.sensor.clone());
-        if !groups.contains(&key) {
-            groups.push(key);
+        if !groups.contains(&key(r)) {
+            groups.push(key(r));
         }
     }
     groups
         .into_iter()
-        .map(|(feature, sensor)| {
-            let g: Vec<&RunRow> = rows
-                .iter()
-                .filter(|r| r.feature == feature && r.sensor == sensor)
-                .collect();
+        .map(|k| {
+            let g: Vec<&RunRow> = rows.iter().filter(|r| key(r) == k).collect();
             let err: Vec<f64> = g.iter().map(|r| r.error_m).collect();
             let it: Vec<f64> = g.iter().map(|r| r.iterations as f64).collect();
             let (error_mean_m, error_std_m) = mean_std(&err);
             let (iterations_mean, iterations_std) = mean_std(&it);
+            let (layout, model, feature, sensor) = k;
             SummaryRow {
                 runs: g.len(),
                 error_median_m: median(&err),
                 converged_share: g.iter().filter(|r| r.converged).count() as f64 / g.len() as f64,
+                layout,
+                model,
                 feature,
                 sensor,
                 error_mean_m,
@@ -198,32 +214,22 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
         .collect()
 }
 
-/// The study's picture: box plots of error (top) and iterations (bottom), one group per
-/// feature and one box per sensor.
-pub fn study_plot(rows: &[RunRow]) -> RgbImage {
-    let panel = |title: &str, metric: fn(&RunRow) -> f64| {
-        let mut groups: Vec<BoxGroup> = Vec::new();
-        for r in rows {
-            let g = match groups.iter().position(|g| g.label == r.feature) {
-                Some(g) => g,
-                None => {
-                    groups.push(BoxGroup {
-                        label: r.feature.clone(),
-                        boxes: Vec::new(),
-                    });
-                    groups.len() - 1
-                }
-            };
-            let boxes = &mut groups[g].boxes;
-            match boxes.iter_mut().find(|b| b.0 == r.sensor) {
-                Some(b) => b.1.push(metric(r)),
-                None => boxes.push((r.sensor.clone(), vec![metric(r)])),
+/// The values the study's box plots show, as `(group, series, value)`: one group per feature
+/// (with the layout and plume model when a study has several), one series per sensor; `metric`
+/// picks the value.
+pub fn plot_values(rows: &[RunRow], metric: fn(&RunRow) -> f64) -> Vec<(String, String, f64)> {
+    let several = |f: fn(&RunRow) -> &str| rows.iter().any(|r| f(r) != f(&rows[0]));
+    let (layouts, models) = (several(|r| &r.layout), several(|r| &r.model));
+    rows.iter()
+        .map(|r| {
+            let mut group = r.feature.clone();
+            if layouts {
+                group = format!("{group} {}", r.layout);
             }
-        }
-        render_boxplots(title, &groups)
-    };
-    stack_vertical(&[
-        panel("localisation error (m)", |r| r.error_m),
-        panel("iterations", |r| r.iterations as f64),
-    ])
+            if models {
+                group = format!("{group} {}", r.model);
+            }
+            (group, r.sensor.clone(), metric(r))
+        })
+        .collect()
 }

@@ -481,7 +481,7 @@ pub fn clean_air_ties(values: &mut [f64]) {
         return;
     }
     let diffs: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
-    let noise = 1.4826 * crate::ste::experiment::median(&diffs) / std::f64::consts::SQRT_2;
+    let noise = 1.4826 * crate::stats::median(&diffs) / std::f64::consts::SQRT_2;
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
     let baseline = sorted[(0.05 * (sorted.len() - 1) as f64).round() as usize];

@@ -19,6 +19,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::frame::Frame;
 use crate::layout::Layout;
 use crate::physics::filament::{FilamentConfig, FilamentPlume};
 use crate::physics::wind::WindField;
@@ -205,13 +206,41 @@ fn draw_point(
     )))
 }
 
-/// A random robot start: uniform over the positions the robot may occupy.
+/// Where a random robot start may lie.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StartRule {
+    /// Anywhere the robot may be.
+    #[default]
+    Anywhere,
+    /// Within [`DOWNWIND_BAND_M`] of the outlet, the far downwind end (where a robot entering
+    /// through the outlet's door, or one searching upwind, starts).
+    Downwind,
+}
+
+/// Depth (m) of the band before the outlet where [`StartRule::Downwind`] starts lie.
+pub const DOWNWIND_BAND_M: f64 = 1.5;
+
+/// A random robot start: uniform over the positions the robot may occupy that obey `rule`.
 ///
 /// # Errors
-/// [`Error::Parameter`] when the robot fits nowhere.
-pub fn random_start(layout: &Layout, robot: &RobotParams, seed: u64) -> Result<[f64; 2]> {
+/// [`Error::Parameter`] when the robot fits nowhere there.
+pub fn random_start(
+    layout: &Layout,
+    robot: &RobotParams,
+    rule: StartRule,
+    seed: u64,
+) -> Result<[f64; 2]> {
     let occupancy = Occupancy::new(layout, robot.radius_m + robot.clearance_m)?;
-    draw_point(layout, seed, "robot", |x, y| occupancy.is_free(x, y))
+    let frame = Frame::of(layout);
+    let length = if frame.swaps_sides() {
+        layout.height()
+    } else {
+        layout.width()
+    };
+    draw_point(layout, seed, "robot", |x, y| {
+        let near_outlet = length - frame.to_canonical(x, y).0 <= DOWNWIND_BAND_M;
+        occupancy.is_free(x, y) && (rule == StartRule::Anywhere || near_outlet)
+    })
 }
 
 /// A random source: uniform over free space at least [`PRIOR_BAND_M`] from the walls, the
