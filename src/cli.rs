@@ -85,9 +85,9 @@ struct TrainArgs {
     /// Stop after this many epochs without validation improvement.
     #[arg(long, default_value_t = 6)]
     patience: usize,
-    /// Input channels: geometry (mask, distance, source), physics (+ cell Peclet number) or
-    /// wind (+ the solved wind).
-    #[arg(long, value_enum, default_value_t = InputsArg::Wind)]
+    /// Input channels: geometry (mask, distance, source), physics (+ cell Peclet number), wind
+    /// (+ the solved wind) or analytic (+ the analytic plume in uniform wind).
+    #[arg(long, value_enum, default_value_t = InputsArg::Analytic)]
     inputs: InputsArg,
     /// Channels per U-Net level, shallow to deep, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,32,32")]
@@ -102,6 +102,7 @@ enum InputsArg {
     Geometry,
     Physics,
     Wind,
+    Analytic,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -518,6 +519,7 @@ fn train(a: TrainArgs) -> Result<()> {
         InputsArg::Geometry => InputSet::Geometry,
         InputsArg::Physics => InputSet::Physics,
         InputsArg::Wind => InputSet::Wind,
+        InputsArg::Analytic => InputSet::Analytic,
     };
     let config = TrainingConfig {
         epochs: a.epochs,

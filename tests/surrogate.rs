@@ -321,7 +321,7 @@ fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up(
     // Burn's raw outputs, transformed back, are the bank.
     let raw: Array4<f32> = plumenet::io::read_npy(&out.join("outputs.npy")).unwrap();
     let inputs: Array4<f32> = plumenet::io::read_npy(&out.join("inputs.npy")).unwrap();
-    assert_eq!(inputs.dim(), (5, 6, 16, 72));
+    assert_eq!(inputs.dim(), (5, 7, 16, 72));
     // The Peclet plane, U dx / D inside the room, and the solved wind relative to the inlet's
     // (uniform far upwind of the obstacle).
     assert!((inputs[[0, 3, 5, 5]] - 0.75 * 0.25 / 0.05).abs() < 1e-6);
@@ -513,4 +513,45 @@ fn the_cosine_schedule_decays_from_the_rate_to_its_final_fraction() {
         .collect();
     assert!(rates.windows(2).all(|w| w[1] < w[0]));
     assert_eq!(LrSchedule::Constant.rate(1e-3, 0.7), 1e-3);
+}
+
+/// The analytic prior channel: the unbounded point source (equal to the walled reference when
+/// the walls are far away), transformed like the target, zero in obstacles and outside the room.
+#[test]
+fn the_analytic_input_is_the_transformed_unbounded_plume() {
+    use plumenet::physics::analytic::{point_source_between_walls, point_source_unbounded};
+    use plumenet::surrogate::data::{InputSet, Normalization, RoomPlanes, SourceEncoding};
+    // Far walls: the walled reference and the unbounded plume agree.
+    for (x, y) in [(3.0, 50.0), (6.0, 50.5), (2.2, 49.0)] {
+        let walled = point_source_between_walls((x, y), (2.0, 50.0), 0.5, 0.05, 100.0, 1.0);
+        let free = point_source_unbounded((x, y), (2.0, 50.0), 0.5, 0.05, 1.0, 1e-9);
+        assert!((walled - free).abs() <= 1e-9 * walled, "{walled} vs {free}");
+    }
+    let layout = Layout::from_json(BLOCKED).unwrap();
+    let room = RoomPlanes::new(
+        &layout,
+        Some(&plumenet::physics::wind::WindField::solve(&layout).unwrap()),
+    );
+    let norm = Normalization::default();
+    let (h, w) = (24, 80);
+    let mut out = vec![0.0f32; 7 * h * w];
+    room.encode(
+        [3.0, 2.0],
+        InputSet::Analytic,
+        SourceEncoding::Gaussian,
+        &norm,
+        (h, w),
+        &mut out,
+    )
+    .unwrap();
+    let plane = |c: usize, j: usize, i: usize| out[c * h * w + j * w + i];
+    let (j, i) = (9, 20); // cell centre (5.125, 2.375), free, downwind of the source
+    let expected = norm.forward(
+        point_source_unbounded((5.125, 2.375), (3.0, 2.0), 0.75, 0.05, 1.0, 0.0625) as f32,
+        0.75,
+    );
+    assert!((plane(6, j, i) - expected).abs() < 1e-6 && expected > 0.1);
+    assert_eq!(plane(6, 5, 25), 0.0, "inside the obstacle");
+    assert_eq!(plane(6, 20, 75), 0.0, "outside the room");
+    assert!(plane(6, 8, 12) > plane(6, 8, 4), "downwind above upwind");
 }

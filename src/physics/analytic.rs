@@ -25,26 +25,40 @@ fn scaled_k0(a: f64, dx: f64, r: f64) -> f64 {
 }
 
 /// Concentration (units/m^2) at `(x, y)` of a source of `rate` units/s at `(xs, ys)` in uniform
-/// wind `speed` along `+x`, diffusivity `diffusivity`, between zero-flux walls at `y = 0` and
-/// `y = height`. Returns `f64::INFINITY` at the source itself.
-pub fn point_source_between_walls(
+/// wind `speed` along `+x`, diffusivity `diffusivity`, in an unbounded plane, with the distance
+/// to the source kept at least `r_min` (which cuts off the logarithmic singularity; with
+/// `r_min = 0` the source point itself gives `f64::INFINITY`).
+pub fn point_source_unbounded(
     (x, y): (f64, f64),
+    (xs, ys): (f64, f64),
+    speed: f64,
+    diffusivity: f64,
+    rate: f64,
+    r_min: f64,
+) -> f64 {
+    let a = speed / (2.0 * diffusivity);
+    let dx = x - xs;
+    let r = dx.hypot(y - ys).max(r_min);
+    if r == 0.0 {
+        return f64::INFINITY;
+    }
+    rate / (2.0 * PI * diffusivity) * scaled_k0(a, dx, r)
+}
+
+/// Concentration (units/m^2) at `(x, y)` of a source of `rate` units/s at `(xs, ys)` in uniform
+/// wind `speed` along `+x`, diffusivity `diffusivity`, between zero-flux walls at `y = 0` and
+/// `y = height` (the sum of [`point_source_unbounded`] over the mirror images). Returns
+/// `f64::INFINITY` at the source itself.
+pub fn point_source_between_walls(
+    point: (f64, f64),
     (xs, ys): (f64, f64),
     speed: f64,
     diffusivity: f64,
     height: f64,
     rate: f64,
 ) -> f64 {
-    let a = speed / (2.0 * diffusivity);
-    let dx = x - xs;
-    let image = |yi: f64| {
-        let r = dx.hypot(y - yi);
-        if r == 0.0 {
-            f64::INFINITY
-        } else {
-            scaled_k0(a, dx, r)
-        }
-    };
+    // Every image is an unbounded source of the same rate.
+    let image = |yi: f64| point_source_unbounded(point, (xs, yi), speed, diffusivity, rate, 0.0);
     let mut sum = image(ys) + image(-ys);
     // Images at 2kH +- ys for k != 0; stop once a whole ring is negligible.
     for k in 1.. {
@@ -55,7 +69,7 @@ pub fn point_source_between_walls(
             break;
         }
     }
-    rate / (2.0 * PI * diffusivity) * sum
+    sum
 }
 
 /// Relative L2 error of a numerical field against [`point_source_between_walls`] over the free

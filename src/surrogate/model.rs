@@ -21,7 +21,7 @@ use super::conv::{burn_conv2d_same, conv2d_same};
 #[derive(Config, Debug, PartialEq)]
 pub struct PlumeNetConfig {
     /// Input channels ([`crate::surrogate::data::InputSet::channels`]).
-    #[config(default = 6)]
+    #[config(default = 7)]
     pub in_channels: usize,
     /// Channels per level, shallow to deep (DeepCFD: `[8, 16, 32, 32]`; one level more here,
     /// so that the receptive field spans a 30 m room: about 460 cells with 5x5 kernels).
