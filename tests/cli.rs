@@ -179,6 +179,32 @@ fn bad_input_gives_one_clear_error_line_and_no_file() {
             ],
             "shard must be",
         ),
+        (
+            vec![
+                "generate",
+                "--out",
+                out,
+                "--layouts",
+                "1",
+                "--sources",
+                "1",
+                "--base",
+                "/nonexistent/arena.json",
+            ],
+            "cannot read",
+        ),
+        (
+            vec!["train", "--data", out, "--out", out, "--inputs", "bogus"],
+            "invalid value 'bogus'",
+        ),
+        (
+            vec!["experiment", "--solver", "--with-solver", "--out", out],
+            "cannot be used with",
+        ),
+        (
+            vec!["experiment", "--solver", "--start", "upwind", "--out", out],
+            "invalid value 'upwind'",
+        ),
     ];
     for (args, needle) in cases {
         let result = plumenet(&args);
