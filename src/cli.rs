@@ -92,6 +92,10 @@ struct TrainArgs {
     /// Channels per U-Net level, shallow to deep, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,32,32")]
     filters: Vec<usize>,
+    /// Hand the analytic prior straight to the output layer (the network learns a correction
+    /// to it); needs --inputs analytic.
+    #[arg(long)]
+    prior_skip: bool,
     /// Peak AdamW learning rate (cosine decay to 2% of it over the epochs).
     #[arg(long, default_value_t = 3e-4)]
     learning_rate: f64,
@@ -530,7 +534,8 @@ fn train(a: TrainArgs) -> Result<()> {
         inputs,
         model: PlumeNetConfig::new()
             .with_in_channels(inputs.channels())
-            .with_filters(a.filters.clone()),
+            .with_filters(a.filters.clone())
+            .with_prior_skip(a.prior_skip.then_some(true)),
         encoding: match a.encoding {
             EncodingArg::Gaussian => SourceEncoding::Gaussian,
             EncodingArg::Distance => SourceEncoding::Distance,

@@ -555,3 +555,32 @@ fn the_analytic_input_is_the_transformed_unbounded_plume() {
     assert_eq!(plane(6, 20, 75), 0.0, "outside the room");
     assert!(plane(6, 8, 12) > plane(6, 8, 4), "downwind above upwind");
 }
+
+/// The prior skip feeds the analytic channel to the head beside the decoder's channels, and
+/// needs the analytic inputs.
+#[test]
+fn the_prior_skip_widens_the_head_and_needs_the_analytic_inputs() {
+    let device = plumenet::surrogate::backend::device();
+    let head = |skip: Option<bool>| {
+        let config = tiny_config(1).model.with_prior_skip(skip);
+        let net = config.init_seeded(&device, 0);
+        let tensors = plumenet::surrogate::saved::named_tensors(&net).unwrap();
+        let (_, w) = tensors.iter().find(|(n, _)| n == "head.weight").unwrap();
+        // And the network runs: [1, 7, 16, 24] in, [1, 1, 16, 24] out.
+        let x = burn::tensor::Tensor::<4>::ones([1, 7, 16, 24], &device);
+        assert_eq!(net.forward(x).dims(), [1, 1, 16, 24]);
+        w.shape().to_vec()
+    };
+    assert_eq!(head(None), vec![1, 4, 1, 1]);
+    assert_eq!(head(Some(true)), vec![1, 5, 1, 1]);
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let mut config = tiny_config(1);
+    config.model = config.model.with_prior_skip(Some(true)).with_in_channels(6);
+    config.inputs = plumenet::surrogate::data::InputSet::Wind;
+    let err = train(&data, &config, &tmp.path().join("m"), &mut |_| ()).unwrap_err();
+    assert!(
+        err.to_string().contains("needs the analytic inputs"),
+        "{err}"
+    );
+}

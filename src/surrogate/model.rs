@@ -33,6 +33,10 @@ pub struct PlumeNetConfig {
     /// Convolutions per block (DeepCFD: 3).
     #[config(default = 3)]
     pub convs_per_level: usize,
+    /// Hand the last input channel (the analytic prior) straight to the 1x1 head beside the
+    /// decoder's channels, so the network learns a correction to it (a residual). `None` (as in
+    /// models saved before it existed) means no.
+    pub prior_skip: Option<bool>,
 }
 
 /// Which implementation runs PlumeNet's convolutions.
@@ -105,6 +109,7 @@ pub struct PlumeNet {
     ups: Vec<ConvTranspose2d>,
     decoders: Vec<ConvBlock>,
     head: Conv2d,
+    prior_skip: bool,
 }
 
 impl PlumeNetConfig {
@@ -136,6 +141,11 @@ impl PlumeNetConfig {
             up.bias = Some(uniform(&mut rng, [cout], fan_in, device));
         }
         net
+    }
+
+    /// Whether the analytic prior skips to the head.
+    pub fn skips_prior(&self) -> bool {
+        self.prior_skip == Some(true)
     }
 
     /// Builds the network with zero weights on `device` (to be replaced by a loaded record or
@@ -176,9 +186,10 @@ impl PlumeNetConfig {
             pool: MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init(),
             ups,
             decoders,
-            head: Conv2dConfig::new([f[0], 1], [1, 1])
+            head: Conv2dConfig::new([f[0] + usize::from(self.skips_prior()), 1], [1, 1])
                 .with_initializer(Initializer::Zeros)
                 .init(device),
+            prior_skip: self.skips_prior(),
         }
     }
 }
@@ -197,11 +208,17 @@ impl PlumeNet {
             h.div_ceil(multiple) * multiple - h,
             w.div_ceil(multiple) * multiple - w,
         );
+        let [_, channels, _, _] = input.dims();
         let mut x = if ph + pw > 0 {
             input.pad((0, pw, 0, ph), 0.0)
         } else {
             input
         };
+        let [_, _, hp, wp] = x.dims();
+        let prior = self.prior_skip.then(|| {
+            x.clone()
+                .slice([0..b, channels - 1..channels, 0..hp, 0..wp])
+        });
         let mut skips = Vec::with_capacity(self.encoders.len());
         for (l, enc) in self.encoders.iter().enumerate() {
             x = enc.forward(x, imp);
@@ -213,6 +230,9 @@ impl PlumeNet {
         for (up, dec) in self.ups.iter().zip(&self.decoders) {
             let skip = skips.pop().expect("one skip per decoder level");
             x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1), imp);
+        }
+        if let Some(prior) = prior {
+            x = Tensor::cat(vec![x, prior], 1);
         }
         let out = same_conv(&self.head, x, false, imp);
         if ph + pw > 0 {

@@ -15,7 +15,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
-use super::data::{TrainingData, size_class};
+use super::data::{InputSet, TrainingData, size_class};
 use super::inference::Surrogate;
 use super::model::PlumeNet;
 use super::saved::{SavedModel, load_weights, weights_bytes};
@@ -62,6 +62,9 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
             config.inputs,
             config.inputs.channels()
         )));
+    }
+    if config.model.skips_prior() && config.inputs != InputSet::Analytic {
+        return bad("the prior skip needs the analytic inputs");
     }
     if config.pad_cells == 0 {
         return bad("pad_cells must be at least 1");
