@@ -64,9 +64,10 @@ enum Command {
 
 #[derive(Debug, Args)]
 struct TrainArgs {
-    /// Dataset directory (from `plumenet generate`, merged if sharded).
-    #[arg(long)]
-    data: PathBuf,
+    /// Dataset directories (from `plumenet generate`, merged if sharded), comma-separated: the
+    /// datasets are trained on together, each holding out its own validation layouts.
+    #[arg(long, value_delimiter = ',', required = true)]
+    data: Vec<PathBuf>,
     /// Output model directory (weights.bpk + config.json), e.g. models/NAME.
     #[arg(long)]
     out: PathBuf,
@@ -518,7 +519,8 @@ pub(crate) fn export_dir(prefix: &str) -> Result<tempfile::TempDir> {
 }
 
 fn train(a: TrainArgs) -> Result<()> {
-    let data = TrainingData::load(&a.data)?;
+    let dirs: Vec<&Path> = a.data.iter().map(PathBuf::as_path).collect();
+    let data = TrainingData::load_all(&dirs)?;
     let inputs = match a.inputs {
         InputsArg::Geometry => InputSet::Geometry,
         InputsArg::Physics => InputSet::Physics,

@@ -584,3 +584,56 @@ fn the_prior_skip_widens_the_head_and_needs_the_analytic_inputs() {
         "{err}"
     );
 }
+
+/// Several datasets train as one: rooms and an arena together, each holding out its own last
+/// layouts for validation; datasets of different cells are refused.
+#[test]
+fn rooms_and_an_arena_train_together() {
+    let tmp = tempfile::tempdir().unwrap();
+    let arena = tmp.path().join("arena");
+    let rooms = tmp.path().join("rooms");
+    let a = tiny_dataset(&arena);
+    let r = rooms_dataset(&rooms, 4, 6);
+    let both = TrainingData::load_all(&[arena.as_path(), rooms.as_path()]).unwrap();
+    assert_eq!(both.len(), a.len() + r.len());
+    assert_eq!(both.layouts().len(), 3 + 4);
+    assert_eq!(both.manifests.len(), 2);
+    let (train_idx, val_idx) = both.split_by_layout(0.34);
+    // ceil(0.34 L) of each: the arena's last two layouts (1, 2) and the rooms' last two (5, 6).
+    let held: std::collections::BTreeSet<usize> =
+        val_idx.iter().map(|&s| both.source_layout[s]).collect();
+    assert_eq!(held, [1, 2, 5, 6].into_iter().collect());
+    assert_eq!(train_idx.len() + val_idx.len(), both.len());
+    // The rooms' samples follow the arena's, with their layouts renumbered.
+    assert_eq!(both.source_xy[a.len()..], r.source_xy[..]);
+    assert_eq!(both.concentration(a.len()), r.concentration(0));
+    let state = train(&both, &tiny_config(2), &tmp.path().join("m"), &mut |_| ()).unwrap();
+    assert_eq!(state.history.len(), 2);
+    let model = Surrogate::load(&tmp.path().join("m")).unwrap();
+    let ranges = model.saved().ranges.unwrap();
+    assert_eq!(ranges.speed_mps[1].max(0.75), ranges.speed_mps[1]);
+    assert_ne!(both.digest, a.digest);
+    // Other cells are refused.
+    let fine = tmp.path().join("fine");
+    let config = GenerateConfig {
+        distribution: Distribution::Base {
+            base: Layout::from_json(
+                r#"{"width_m":9,"height_m":4,"cell_m":0.125,"wind":{"speed_mps":0.75}}"#,
+            )
+            .unwrap()
+            .spec()
+            .clone(),
+            params: GenerateParams {
+                inlet_clearance_m: 1.0,
+                ..GenerateParams::default()
+            },
+        },
+        layouts: 1,
+        sources_per_layout: 1,
+        seed: 1,
+        shard: None,
+    };
+    dataset::generate(&config, &fine, &|| ()).unwrap();
+    let err = TrainingData::load_all(&[arena.as_path(), fine.as_path()]).unwrap_err();
+    assert!(err.to_string().contains("other cells"), "{err}");
+}

@@ -343,10 +343,13 @@ impl TrainedRanges {
 /// ([`crate::frame`]: turned so that the wind comes from the west, as the network sees it).
 #[derive(Debug, Clone)]
 pub struct TrainingData {
-    /// The dataset's manifest.
-    pub manifest: Manifest,
-    /// SHA-256 of `manifest.json`, recorded with a trained model.
+    /// The manifests of the datasets, in order.
+    pub manifests: Vec<Manifest>,
+    /// SHA-256 of `manifest.json` for one dataset; of the datasets' digests, one per line, for
+    /// several. Recorded with a trained model.
     pub digest: String,
+    /// The layout indices of each dataset.
+    parts: Vec<std::ops::Range<usize>>,
     /// The layouts (real frame), checked.
     layouts: Vec<Layout>,
     rooms: Vec<RoomPlanes>,
@@ -359,6 +362,49 @@ pub struct TrainingData {
 }
 
 impl TrainingData {
+    /// Loads several complete dataset directories as one (for example random rooms and the
+    /// paper's arena); each keeps its own validation layouts ([`TrainingData::split_by_layout`]).
+    ///
+    /// # Errors
+    /// As [`TrainingData::load`]; [`Error::Dataset`] for no directory or datasets of different
+    /// cell sizes.
+    pub fn load_all(dirs: &[&Path]) -> Result<Self> {
+        let mut all: Option<Self> = None;
+        for dir in dirs {
+            let next = Self::load(dir)?;
+            all = Some(match all {
+                None => next,
+                Some(mut data) => {
+                    let cell = |d: &Self| d.layouts.first().map(Layout::cell);
+                    if cell(&data) != cell(&next) {
+                        return Err(Error::Dataset(format!(
+                            "{} has other cells ({:?} m) than the datasets before it ({:?} m)",
+                            dir.display(),
+                            cell(&next),
+                            cell(&data)
+                        )));
+                    }
+                    let offset = data.layouts.len();
+                    data.parts.push(offset..offset + next.layouts.len());
+                    data.digest = format!("{}\n{}", data.digest, next.digest);
+                    data.manifests.extend(next.manifests);
+                    data.layouts.extend(next.layouts);
+                    data.rooms.extend(next.rooms);
+                    data.source_layout
+                        .extend(next.source_layout.iter().map(|l| l + offset));
+                    data.source_xy.extend(next.source_xy);
+                    data.concentration.extend(next.concentration);
+                    data
+                }
+            });
+        }
+        let mut data = all.ok_or_else(|| Error::Dataset("no dataset given".into()))?;
+        if dirs.len() > 1 {
+            data.digest = sha256_hex(data.digest.as_bytes());
+        }
+        Ok(data)
+    }
+
     /// Loads a complete dataset directory.
     ///
     /// # Errors
@@ -460,8 +506,9 @@ impl TrainingData {
             samples.push((l, [x, y]));
         }
         Ok(Self {
-            manifest,
+            manifests: vec![manifest],
             digest,
+            parts: std::iter::once(0..layouts.len()).collect(),
             layouts,
             rooms,
             source_layout: samples.iter().map(|s| s.0).collect(),
@@ -500,17 +547,24 @@ impl TrainingData {
         TrainedRanges::of(&self.layouts)
     }
 
-    /// Splits samples by layout: the last `ceil(fraction * L)` layouts (at least one when there
-    /// are two or more) are for validation, so validation measures unseen layouts.
+    /// Splits samples by layout: of each dataset, the last `ceil(fraction * L)` layouts (at
+    /// least one when it has two or more) are for validation, so validation measures unseen
+    /// layouts.
     pub fn split_by_layout(&self, fraction: f64) -> (Vec<usize>, Vec<usize>) {
-        let layouts = self.rooms.len();
-        let held = if layouts < 2 {
-            0
-        } else {
-            ((fraction * layouts as f64).ceil() as usize).clamp(1, layouts - 1)
-        };
-        let first_val = layouts - held;
-        (0..self.len()).partition(|&s| self.source_layout[s] < first_val)
+        let held_out: Vec<std::ops::Range<usize>> = self
+            .parts
+            .iter()
+            .map(|part| {
+                let layouts = part.len();
+                let held = if layouts < 2 {
+                    0
+                } else {
+                    ((fraction * layouts as f64).ceil() as usize).clamp(1, layouts - 1)
+                };
+                part.end - held..part.end
+            })
+            .collect();
+        (0..self.len()).partition(|&s| !held_out.iter().any(|r| r.contains(&self.source_layout[s])))
     }
 
     /// `samples` grouped by their padded canonical grid (padding to multiples of `pad_cells`),
