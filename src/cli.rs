@@ -17,7 +17,7 @@ use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::{FieldPlot, render_field, save_png};
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
-use plumenet::surrogate::eval::{Summary, evaluate};
+use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
 use plumenet::{bench, io};
 
@@ -155,6 +155,10 @@ struct EvalArgs {
     /// Seed of the point sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Rank both fields after raising them to this fraction of the true peak (sub-floor cells
+    /// tie as clean air); 0 ranks every value.
+    #[arg(long, default_value_t = 0.0)]
+    floor: f64,
     /// PNG comparing prediction, physics and error for the first maps.
     #[arg(long)]
     png: Option<PathBuf>,
@@ -605,6 +609,9 @@ fn predict(a: PredictArgs) -> Result<()> {
 }
 
 fn eval(a: EvalArgs) -> Result<()> {
+    if !(a.floor.is_finite() && (0.0..1.0).contains(&a.floor)) {
+        bail!("--floor must be in [0, 1), got {}", a.floor);
+    }
     let model = Surrogate::load(&a.model)?;
     let data = TrainingData::load(&a.data)?;
     if data.digest == model.saved().dataset_digest {
@@ -612,7 +619,12 @@ fn eval(a: EvalArgs) -> Result<()> {
             "warning: this is the model's training dataset; use unseen layouts for an honest score"
         );
     }
-    let report = evaluate(&model, &data, a.points, a.seed)?;
+    let settings = EvalSettings {
+        points: a.points,
+        seed: a.seed,
+        floor: a.floor,
+    };
+    let report = evaluate(&model, &data, &settings)?;
     let line = |name: &str, s: &Summary| {
         println!(
             "{name:<24} {:>5} maps  median relative L2 {:.3} (p90 {:.3})  median Spearman {:.3} (p10 {:.3})",

@@ -481,7 +481,55 @@ fn one_model_trains_on_rooms_of_several_sizes_and_reports_per_class() {
     assert!(field.iter().all(|v| v.is_finite() && *v >= 0.0));
     // Per-class evaluation covers every map once in each table.
     let test = rooms_dataset(&tmp.path().join("test"), 3, 5);
-    let report = plumenet::surrogate::eval::evaluate(&model, &test, 50, 0);
+    let settings = plumenet::surrogate::eval::EvalSettings {
+        points: 50,
+        ..Default::default()
+    };
+    let report = plumenet::surrogate::eval::evaluate(&model, &test, &settings);
+    // The floor, by brute force on the first map of the first dataset's room: both fields
+    // raised to 1e-3 of the true peak at the same sampled cells give the reported rho.
+    let floored = plumenet::surrogate::eval::EvalSettings {
+        floor: 1e-3,
+        ..settings
+    };
+    if let Ok(with_floor) = plumenet::surrogate::eval::evaluate(&model, &data, &floored) {
+        let s = with_floor.maps[0].sample;
+        let real = &data.layouts()[data.source_layout[s]];
+        let canonical = plumenet::frame::Frame::of(real)
+            .layout_to_canonical(real)
+            .unwrap();
+        let pred = model
+            .predict_many(&canonical, &[data.source_xy[s]])
+            .unwrap();
+        let truth = data.concentration(s);
+        let free: Vec<(usize, usize)> = canonical
+            .solid()
+            .indexed_iter()
+            .filter(|(_, x)| !**x)
+            .map(|(ji, _)| ji)
+            .collect();
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+        rng.set_stream(s as u64);
+        let picks = rand::seq::index::sample(&mut rng, free.len(), 50.min(free.len()));
+        let floor = 1e-3 * f64::from(truth.iter().fold(0.0f32, |m, v| m.max(*v)));
+        let (a, b): (Vec<f64>, Vec<f64>) = picks
+            .iter()
+            .map(|k| {
+                let (j, i) = free[k];
+                (
+                    f64::from(pred[[0, j, i]]).max(floor),
+                    f64::from(truth[[j, i]]).max(floor),
+                )
+            })
+            .unzip();
+        let rho = plumenet::surrogate::eval::spearman(&a, &b);
+        assert!(
+            (rho - with_floor.maps[0].spearman).abs() < 1e-12 || rho.is_nan(),
+            "{rho} vs {}",
+            with_floor.maps[0].spearman
+        );
+    }
     // A test room may fall outside the few training rooms' ranges: then the error says so.
     match report {
         Ok(report) => {

@@ -124,8 +124,31 @@ fn summarize(scores: &[&MapScore]) -> Option<Summary> {
     })
 }
 
-/// Scores every map of `data` (`points` sampled free cells per map for Spearman, seeded), with
-/// tables per room size class and per wind speed third.
+/// How maps are scored.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalSettings {
+    /// Sampled free cells per map for Spearman rho.
+    pub points: usize,
+    /// Seed of the point sampling.
+    pub seed: u64,
+    /// Before ranking, both fields are raised to this fraction of the true peak, so that cells
+    /// below it (clean air to any sensor; far upwind the solver's values fall to 1e-30 and
+    /// below) tie instead of being ordered by round-off. 0 ranks every value.
+    pub floor: f64,
+}
+
+impl Default for EvalSettings {
+    fn default() -> Self {
+        Self {
+            points: 500,
+            seed: 0,
+            floor: 0.0,
+        }
+    }
+}
+
+/// Scores every map of `data` (Spearman rho at sampled free cells, seeded), with tables per
+/// room size class and per wind speed third.
 ///
 /// # Errors
 /// [`Error::Model`] when the model does not cover a layout of the dataset, [`Error::Dataset`]
@@ -133,8 +156,7 @@ fn summarize(scores: &[&MapScore]) -> Option<Summary> {
 pub fn evaluate(
     model: &Surrogate,
     data: &TrainingData,
-    points: usize,
-    seed: u64,
+    settings: &EvalSettings,
 ) -> Result<Evaluation> {
     let mut scores = Vec::with_capacity(data.len());
     for (l, real) in data.layouts().iter().enumerate() {
@@ -162,14 +184,17 @@ pub fn evaluate(
                 num += f64::from(pred[[j, i]] - truth[[j, i]]).powi(2);
                 den += f64::from(truth[[j, i]]).powi(2);
             }
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
             rng.set_stream(s as u64);
-            let picks = sample(&mut rng, free.len(), points.min(free.len()));
+            let picks = sample(&mut rng, free.len(), settings.points.min(free.len()));
+            let peak = truth.iter().fold(0.0f32, |m, v| m.max(*v));
+            let floor = settings.floor * f64::from(peak);
             let (a, b): (Vec<f64>, Vec<f64>) = picks
                 .iter()
                 .map(|k| {
                     let (j, i) = free[k];
-                    (f64::from(pred[[j, i]]), f64::from(truth[[j, i]]))
+                    let raise = |v: f32| f64::from(v).max(floor);
+                    (raise(pred[[j, i]]), raise(truth[[j, i]]))
                 })
                 .unzip();
             scores.push(MapScore {
