@@ -414,8 +414,17 @@ fn generate(a: GenerateArgs) -> Result<()> {
         seed: a.seed,
         shard: a.shard,
     };
-    let bar = progress_bar(config.layout_range().len(), "layouts");
-    let manifest = dataset::generate(&config, &a.out, &|| bar.inc(1))?;
+    let total = config.layout_range().len();
+    let bar = progress_bar(total, "layouts");
+    // Output to a file (a nohup run) gets a line every 5% instead of the bar.
+    let step = total.div_ceil(20).max(1) as u64;
+    let manifest = dataset::generate(&config, &a.out, &|| {
+        bar.inc(1);
+        let done = bar.position();
+        if bar.is_hidden() && (done % step == 0 || done == total as u64) {
+            say(&bar, format!("{done}/{total} layouts"));
+        }
+    })?;
     bar.finish();
     println!(
         "wrote {} layouts x {} sources to {}",
