@@ -16,6 +16,7 @@ use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::{FieldPlot, render_field, save_png};
+use plumenet::surrogate::config::WarmStart;
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
 use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
@@ -97,6 +98,10 @@ struct TrainArgs {
     /// to it); needs --inputs analytic.
     #[arg(long)]
     prior_skip: bool,
+    /// Start from this trained model's weights (its architecture and inputs too) instead of
+    /// random ones, e.g. to continue a model on more or other data.
+    #[arg(long)]
+    init_from: Option<PathBuf>,
     /// Peak AdamW learning rate (cosine decay to 2% of it over the epochs).
     #[arg(long, default_value_t = 3e-4)]
     learning_rate: f64,
@@ -540,7 +545,7 @@ fn train(a: TrainArgs) -> Result<()> {
         InputsArg::Wind => InputSet::Wind,
         InputsArg::Analytic => InputSet::Analytic,
     };
-    let config = TrainingConfig {
+    let mut config = TrainingConfig {
         epochs: a.epochs,
         batch_size: a.batch_size,
         seed: a.seed,
@@ -557,6 +562,16 @@ fn train(a: TrainArgs) -> Result<()> {
         },
         ..TrainingConfig::default()
     };
+    if let Some(dir) = &a.init_from {
+        let start = Surrogate::load(dir)?;
+        let saved = start.saved();
+        config.model = saved.architecture.clone();
+        config.inputs = saved.training.inputs;
+        config.init_from = Some(WarmStart {
+            model: dir.display().to_string(),
+            weights_digest: saved.weights_digest.clone(),
+        });
+    }
     let bar = progress_bar(0, "epoch");
     let mut running = (0.0, 0usize);
     let state = plumenet::surrogate::train(&data, &config, &a.out, &mut |event| match event {

@@ -685,3 +685,73 @@ fn rooms_and_an_arena_train_together() {
     let err = TrainingData::load_all(&[arena.as_path(), fine.as_path()]).unwrap_err();
     assert!(err.to_string().contains("other cells"), "{err}");
 }
+
+/// A run can start from a trained model's weights: its first epoch starts where that model
+/// ended, a wrong digest or architecture is refused, and a warm-started run resumes exactly.
+#[test]
+fn a_run_can_start_from_a_trained_model() {
+    use plumenet::surrogate::config::WarmStart;
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let first = tmp.path().join("first");
+    let trained = train(&data, &tiny_config(8), &first, &mut |_| ()).unwrap();
+    let digest = Surrogate::load(&first)
+        .unwrap()
+        .saved()
+        .weights_digest
+        .clone();
+    let warm = |digest: String| TrainingConfig {
+        init_from: Some(WarmStart {
+            model: first.display().to_string(),
+            weights_digest: digest,
+        }),
+        ..tiny_config(2)
+    };
+    let fresh = train(
+        &data,
+        &tiny_config(2),
+        &tmp.path().join("fresh"),
+        &mut |_| (),
+    )
+    .unwrap();
+    let cont = train(
+        &data,
+        &warm(digest.clone()),
+        &tmp.path().join("warm"),
+        &mut |_| (),
+    )
+    .unwrap();
+    let best = trained.best.unwrap().validation;
+    assert!(
+        cont.history[0].train < fresh.history[0].train && cont.history[0].validation < 2.0 * best,
+        "warm {:?} vs fresh {:?}, first run's best {best}",
+        cont.history[0],
+        fresh.history[0]
+    );
+    // Resuming a warm-started run needs no second look at the first model, and is exact.
+    let again = train(
+        &data,
+        &warm(digest.clone()),
+        &tmp.path().join("warm"),
+        &mut |_| (),
+    )
+    .unwrap();
+    assert_eq!(losses(&again.history), losses(&cont.history));
+    let err = train(
+        &data,
+        &warm("0".repeat(64)),
+        &tmp.path().join("bad"),
+        &mut |_| (),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("not the model to start from"), "{err}");
+    let other = TrainingConfig {
+        model: tiny_config(1).model.with_filters(vec![4, 4]),
+        ..warm(digest)
+    };
+    let err = train(&data, &other, &tmp.path().join("bad2"), &mut |_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("not the model to start from"), "{err}");
+}

@@ -39,6 +39,20 @@ pub struct TrainingConfig {
     /// Learning rate over the run.
     #[serde(default)]
     pub schedule: LrSchedule,
+    /// Start from the weights of this trained model (same architecture) instead of random ones:
+    /// its weights digest, recorded so a resumed run can check it starts from the same model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<WarmStart>,
+}
+
+/// The trained model a run starts from.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WarmStart {
+    /// Model directory.
+    pub model: String,
+    /// Its weights digest.
+    pub weights_digest: String,
 }
 
 fn legacy_inputs() -> InputSet {
@@ -96,6 +110,7 @@ impl Default for TrainingConfig {
             schedule: LrSchedule::Cosine {
                 final_fraction: 0.02,
             },
+            init_from: None,
         }
     }
 }

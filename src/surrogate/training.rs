@@ -169,6 +169,21 @@ fn epoch_batches(
     batches
 }
 
+/// The weights a fresh run starts from: seeded random ones, or those of the warm-start model.
+fn initial_model(config: &TrainingConfig, device: &Device) -> Result<PlumeNet> {
+    let Some(warm) = &config.init_from else {
+        return Ok(config.model.init_seeded(device, config.seed));
+    };
+    let (saved, net) = SavedModel::load(Path::new(&warm.model), device)?;
+    if saved.architecture != config.model || saved.weights_digest != warm.weights_digest {
+        return Err(Error::Model(format!(
+            "{} is not the model to start from: its architecture or weights differ from the run's",
+            warm.model
+        )));
+    }
+    Ok(net)
+}
+
 /// Trains (or resumes training) on `data`, writing the model to `out`.
 ///
 /// # Errors
@@ -191,7 +206,7 @@ pub fn train(
             "no training layouts left after the validation split".into(),
         ));
     }
-    let fresh_model = || config.model.init_seeded(&device, config.seed);
+
     let fresh_optim = || {
         AdamWConfig::new()
             .with_weight_decay(config.weight_decay)
@@ -207,7 +222,7 @@ pub fn train(
                 checkpoint.display()
             )));
         }
-        let model = load_weights(fresh_model(), &checkpoint.join("model.bpk"))?;
+        let model = load_weights(config.model.init(&device), &checkpoint.join("model.bpk"))?;
         let bytes =
             std::fs::read(checkpoint.join("optimizer.bin")).map_err(|source| Error::Io {
                 action: "cannot read",
@@ -231,7 +246,7 @@ pub fn train(
             best: None,
             stopped_early: false,
         };
-        (fresh_model(), fresh_optim(), state)
+        (initial_model(config, &device)?, fresh_optim(), state)
     };
     if state.stopped_early || state.history.len() >= config.epochs {
         return Ok(state);
