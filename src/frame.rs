@@ -64,6 +64,16 @@ impl Frame {
         matches!(self.from, WindFrom::South | WindFrom::North)
     }
 
+    /// The arena's sides in the canonical frame: its length along the wind and its width across
+    /// it (m).
+    pub fn canonical_sides(&self) -> (f64, f64) {
+        if self.swaps_sides() {
+            (self.height, self.width)
+        } else {
+            (self.width, self.height)
+        }
+    }
+
     /// Canonical coordinates of a real point.
     pub fn to_canonical(&self, x: f64, y: f64) -> (f64, f64) {
         let (w, h) = (self.width, self.height);
@@ -171,11 +181,7 @@ impl Frame {
         if self.is_identity() {
             return Ok(layout.clone());
         }
-        let (w, h) = if self.swaps_sides() {
-            (self.height, self.width)
-        } else {
-            (self.width, self.height)
-        };
+        let (w, h) = self.canonical_sides();
         let spec = turn_spec(
             layout.spec(),
             |x, y| self.to_canonical(x, y),

@@ -20,7 +20,7 @@ use crate::physics::wind::WindField;
 const MAX_ATTEMPTS: usize = 10_000;
 /// Obstacle corners and sizes are multiples of this (m), so that candidate source points
 /// (centres of the 0.25 m grid) never lie on an obstacle edge.
-const SNAP_M: f64 = 0.25;
+pub(super) const SNAP_M: f64 = 0.25;
 
 /// One shard `index` of `count` (`--shard K/N`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,8 +91,11 @@ impl GenerateConfig {
     }
 }
 
-fn snap_range(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    let steps = ((hi - lo) / SNAP_M).floor().max(0.0) as u32;
+/// A multiple of [`SNAP_M`] in `[lo, hi]`, uniformly (`lo` rounded up to a multiple when the
+/// range holds none).
+pub(super) fn snapped(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    let lo = (lo / SNAP_M).ceil() * SNAP_M;
+    let steps = ((hi - lo) / SNAP_M + 1e-9).floor().max(0.0) as u32;
     lo + SNAP_M * f64::from(rng.random_range(0..=steps))
 }
 
@@ -112,13 +115,13 @@ pub fn random_layout(
         let count = rng.random_range(1..=params.max_obstacles);
         let obstacles: Vec<Obstacle> = (0..count)
             .map(|_| {
-                let ow = snap_range(rng, params.min_size_m, params.max_width_m);
-                let oh = snap_range(
+                let ow = snapped(rng, params.min_size_m, params.max_width_m);
+                let oh = snapped(
                     rng,
                     params.min_size_m,
                     params.max_height_m.min(h - params.min_gap_m),
                 );
-                let x_min = snap_range(
+                let x_min = snapped(
                     rng,
                     params.inlet_clearance_m,
                     w - params.inlet_clearance_m - ow,
@@ -126,7 +129,7 @@ pub fn random_layout(
                 let y_min = match rng.random_range(0..10) {
                     0..=1 => 0.0,
                     2..=3 => h - oh,
-                    _ => snap_range(rng, SNAP_M, h - oh - SNAP_M),
+                    _ => snapped(rng, SNAP_M, h - oh - SNAP_M),
                 };
                 Obstacle {
                     x_min,
@@ -291,5 +294,5 @@ pub fn generate(
         layouts: samples.iter().map(|s| s.layout.spec().clone()).collect(),
         arrays: Default::default(),
     };
-    manifest.write_arrays(out, &arrays)
+    manifest.write_arrays(out, arrays)
 }

@@ -231,7 +231,7 @@ impl Manifest {
     }
 
     /// Writes the arrays, then the manifest last (so a directory with a manifest is complete).
-    pub(super) fn write_arrays(mut self, dir: &Path, a: &Arrays) -> Result<Self> {
+    pub(super) fn write_arrays(mut self, dir: &Path, a: Arrays) -> Result<Self> {
         let shapes = self.expected_shapes();
         for ((name, dtype), shape) in ARRAYS.iter().zip(shapes) {
             self.arrays.insert(
@@ -244,18 +244,15 @@ impl Manifest {
             );
         }
         let path = |name: &str| dir.join(format!("{name}.npy"));
-        let flat = |v: &Vec<f32>| Array1::from(v.clone());
-        io::write_npy(&path("obstacle_mask"), &flat(&a.obstacle_mask))?;
-        io::write_npy(&path("signed_distance"), &flat(&a.signed_distance))?;
-        io::write_npy(&path("wind"), &flat(&a.wind))?;
-        io::write_npy(
-            &path("source_layout"),
-            &Array1::from(a.source_layout.clone()),
-        )?;
-        let xy = Array2::from_shape_vec((a.source_layout.len(), 2), a.source_xy.clone())
+        let sources = a.source_layout.len();
+        io::write_npy(&path("obstacle_mask"), &Array1::from(a.obstacle_mask))?;
+        io::write_npy(&path("signed_distance"), &Array1::from(a.signed_distance))?;
+        io::write_npy(&path("wind"), &Array1::from(a.wind))?;
+        io::write_npy(&path("source_layout"), &Array1::from(a.source_layout))?;
+        let xy = Array2::from_shape_vec((sources, 2), a.source_xy)
             .map_err(|e| Error::Dataset(format!("source positions: {e}")))?;
         io::write_npy(&path("source_xy"), &xy)?;
-        io::write_npy(&path("concentration"), &flat(&a.concentration))?;
+        io::write_npy(&path("concentration"), &Array1::from(a.concentration))?;
         io::write_json(&dir.join("manifest.json"), &self)?;
         Ok(self)
     }

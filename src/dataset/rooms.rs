@@ -16,6 +16,7 @@ use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::generate::{SNAP_M, snapped};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::{Layout, LayoutSpec, Obstacle, Wind, WindFrom};
@@ -23,9 +24,6 @@ use crate::layout::{Layout, LayoutSpec, Obstacle, Wind, WindFrom};
 /// Give up on a room after this many redraws, and on one group after this many placements.
 const MAX_ROOM_ATTEMPTS: usize = 1_000;
 const MAX_GROUP_ATTEMPTS: usize = 50;
-/// Obstacle edges are multiples of this (m): candidate points (centres of the 0.25 m grid) never
-/// lie on an edge.
-const SNAP_M: f64 = 0.25;
 
 /// The kinds of obstacle groups.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -163,13 +161,6 @@ impl RoomParams {
 /// A whole-metre draw from `[lo, hi]`.
 fn metres(rng: &mut ChaCha8Rng, [lo, hi]: [u32; 2]) -> f64 {
     f64::from(rng.random_range(lo..=hi))
-}
-
-/// A multiple of [`SNAP_M`] in `[lo, hi]` (`lo` when the range is empty).
-fn snapped(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    let lo = (lo / SNAP_M).ceil() * SNAP_M;
-    let steps = ((hi - lo) / SNAP_M + 1e-9).floor().max(0.0) as u32;
-    lo + SNAP_M * f64::from(rng.random_range(0..=steps))
 }
 
 fn rect(x_min: f64, y_min: f64, w: f64, h: f64) -> Obstacle {

@@ -232,11 +232,7 @@ pub fn random_start(
 ) -> Result<[f64; 2]> {
     let occupancy = Occupancy::new(layout, robot.radius_m + robot.clearance_m)?;
     let frame = Frame::of(layout);
-    let length = if frame.swaps_sides() {
-        layout.height()
-    } else {
-        layout.width()
-    };
+    let length = frame.canonical_sides().0;
     draw_point(layout, seed, "robot", |x, y| {
         let near_outlet = length - frame.to_canonical(x, y).0 <= DOWNWIND_BAND_M;
         occupancy.is_free(x, y) && (rule == StartRule::Anywhere || near_outlet)

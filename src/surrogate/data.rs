@@ -148,17 +148,34 @@ impl RoomPlanes {
     /// The planes of a canonical layout (wind from the west), with its solved wind if given.
     pub fn new(canonical: &Layout, wind: Option<&WindField>) -> Self {
         let speed = canonical.wind_speed();
+        let wind = wind.map(|w| {
+            let c = w.centred();
+            let plane = |k: usize| {
+                c.index_axis(ndarray::Axis(0), k)
+                    .mapv(|v| (v / speed) as f32)
+            };
+            [plane(0), plane(1)]
+        });
+        Self::with_planes(
+            canonical,
+            canonical.solid().mapv(|s| f32::from(u8::from(s))),
+            canonical.signed_distance().mapv(|d| d as f32),
+            wind,
+        )
+    }
+
+    /// The room of a canonical layout with its planes already at hand (a dataset's, turned).
+    fn with_planes(
+        canonical: &Layout,
+        mask: Array2<f32>,
+        sdf: Array2<f32>,
+        wind: Option<[Array2<f32>; 2]>,
+    ) -> Self {
+        let speed = canonical.wind_speed();
         Self {
-            mask: canonical.solid().mapv(|s| f32::from(u8::from(s))),
-            sdf: canonical.signed_distance().mapv(|d| d as f32),
-            wind: wind.map(|w| {
-                let c = w.centred();
-                let plane = |k: usize| {
-                    c.index_axis(ndarray::Axis(0), k)
-                        .mapv(|v| (v / speed) as f32)
-                };
-                [plane(0), plane(1)]
-            }),
+            mask,
+            sdf,
+            wind,
             cell_m: canonical.cell(),
             speed_mps: speed,
             peclet: speed * canonical.cell() / canonical.diffusivity(),
@@ -276,18 +293,10 @@ impl TrainedRanges {
                     [lo.min(v), hi.max(v)]
                 })
         };
-        let canonical = |l: &Layout| {
-            let turned = Frame::of(l).swaps_sides();
-            if turned {
-                (l.height(), l.width())
-            } else {
-                (l.width(), l.height())
-            }
-        };
         Self {
             cell_m: layouts.first().map_or(0.0, Layout::cell),
-            length_m: span(&|l| canonical(l).0),
-            across_m: span(&|l| canonical(l).1),
+            length_m: span(&|l| Frame::of(l).canonical_sides().0),
+            across_m: span(&|l| Frame::of(l).canonical_sides().1),
             speed_mps: span(&Layout::wind_speed),
             diffusivity_m2ps: span(&Layout::diffusivity),
             eddy_viscosity_m2ps: span(&Layout::eddy_viscosity),
@@ -299,12 +308,7 @@ impl TrainedRanges {
     /// # Errors
     /// [`Error::Model`] naming the quantity, its value and the trained range.
     pub fn check(&self, layout: &Layout) -> Result<()> {
-        let frame = Frame::of(layout);
-        let (length, across) = if frame.swaps_sides() {
-            (layout.height(), layout.width())
-        } else {
-            (layout.width(), layout.height())
-        };
+        let (length, across) = Frame::of(layout).canonical_sides();
         if (layout.cell() - self.cell_m).abs() > 1e-9 {
             return Err(Error::Model(format!(
                 "the layout's cell_m = {} m differs from the {} m cells the model was trained on",
@@ -444,7 +448,6 @@ impl TrainingData {
         );
         let mut layouts = Vec::with_capacity(manifest.layouts.len());
         let mut rooms = Vec::with_capacity(manifest.layouts.len());
-        let mut starts = Vec::with_capacity(manifest.layouts.len());
         let mut offset = 0;
         for (k, spec) in manifest.layouts.iter().enumerate() {
             let layout =
@@ -473,14 +476,13 @@ impl TrainingData {
                 uc[jc] = (a / speed) as f32;
                 vc[jc] = (b / speed) as f32;
             }
-            rooms.push(RoomPlanes {
-                mask: turned(&mask),
-                sdf: turned(&dist),
-                wind: Some([uc, vc]),
-                ..RoomPlanes::new(&canonical, None)
-            });
+            rooms.push(RoomPlanes::with_planes(
+                &canonical,
+                turned(&mask),
+                turned(&dist),
+                Some([uc, vc]),
+            ));
             layouts.push(layout);
-            starts.push(offset);
             offset += h * w;
         }
         let mut samples = Vec::with_capacity(owner.len());
