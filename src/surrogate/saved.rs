@@ -60,12 +60,13 @@ pub struct SavedModel {
 impl SavedModel {
     /// The description of a model trained with `config` on `data`, as of `state`.
     pub fn new(config: &TrainingConfig, data: &TrainingData, state: &TrainState) -> Self {
+        let ranges = data.ranges();
         Self {
             format: MODEL_FORMAT.into(),
             architecture: config.model.clone(),
             grid: None,
-            cell_m: data.ranges().cell_m,
-            ranges: Some(data.ranges()),
+            cell_m: ranges.cell_m,
+            ranges: Some(ranges),
             encoding: config.encoding,
             normalization: config.normalization,
             dataset_digest: data.digest.clone(),
