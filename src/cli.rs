@@ -55,6 +55,8 @@ enum Command {
     Localize(ste::LocalizeArgs),
     /// The STE over a logged run (CSV t,x,y,value), for a real robot's readings.
     Replay(ste::ReplayArgs),
+    /// Fly a raster survey through the simulated reality and write its readings log.
+    Survey(ste::SurveyArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(ste::ExperimentArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
@@ -313,6 +315,7 @@ impl Cli {
             Command::Eval(a) => eval(a),
             Command::Localize(a) => ste::localize(a),
             Command::Replay(a) => ste::replay_log(a),
+            Command::Survey(a) => ste::survey(a),
             Command::Experiment(a) => ste::experiment(a),
             Command::BenchSte(a) => ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),

@@ -15,6 +15,17 @@ fn plumenet(args: &[&str]) -> Output {
         .expect("binary runs")
 }
 
+/// Runs the binary and asserts that it succeeded.
+fn plumenet_ok(args: &[&str]) -> Output {
+    let out = plumenet(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 fn assert_clean_failure(out: &Output, needle: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
@@ -31,7 +42,7 @@ const TUNNEL: &str = "data/layouts/wind-tunnel.json";
 fn simulate_writes_field_wind_png_and_report() {
     let tmp = tempfile::tempdir().unwrap();
     let p = |n: &str| tmp.path().join(n).to_string_lossy().into_owned();
-    let out = plumenet(&[
+    plumenet_ok(&[
         "simulate",
         "--layout",
         TUNNEL,
@@ -47,11 +58,6 @@ fn simulate_writes_field_wind_png_and_report() {
         "--json",
         &p("r.json"),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let field = read_npy::<f32, Ix2>(&tmp.path().join("f.npy")).unwrap();
     assert_eq!(field.dim(), (32, 144));
     let wind = read_npy::<f32, Ix3>(&tmp.path().join("w.npy")).unwrap();
@@ -67,7 +73,7 @@ fn simulate_writes_field_wind_png_and_report() {
 fn bank_writes_every_candidate() {
     let tmp = tempfile::tempdir().unwrap();
     let path = tmp.path().join("bank.npy");
-    let out = plumenet(&[
+    plumenet_ok(&[
         "bank",
         "--solver",
         "--layout",
@@ -75,11 +81,6 @@ fn bank_writes_every_candidate() {
         "--out",
         path.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let bank = read_npy::<f32, Ix3>(&path).unwrap();
     let cands = read_npy::<f32, Ix2>(&tmp.path().join("bank.candidates.npy")).unwrap();
     assert_eq!(bank.dim(), (1112, 32, 144));
@@ -262,7 +263,7 @@ fn every_command_has_help() {
 fn shipped_model_predicts_and_banks_the_paper_arena() {
     let tmp = tempfile::tempdir().unwrap();
     let field = tmp.path().join("p.npy");
-    let out = plumenet(&[
+    plumenet_ok(&[
         "predict",
         "--model",
         "models/default",
@@ -273,11 +274,6 @@ fn shipped_model_predicts_and_banks_the_paper_arena() {
         "--out",
         field.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let f = read_npy::<f32, Ix2>(&field).unwrap();
     assert_eq!(f.dim(), (32, 144));
     assert!(f.iter().all(|v| *v >= 0.0 && v.is_finite()));
@@ -314,7 +310,7 @@ fn shipped_model_predicts_and_banks_the_paper_arena() {
 fn bench_net_reports_throughput_and_flop_rate() {
     let tmp = tempfile::tempdir().unwrap();
     let json = tmp.path().join("bench.json");
-    let out = plumenet(&[
+    let out = plumenet_ok(&[
         "bench-net",
         "--spacing",
         "2",
@@ -328,11 +324,6 @@ fn bench_net_reports_throughput_and_flop_rate() {
         "--json",
         json.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("GFLOP/s"), "{stdout}");
     let report: serde_json::Value =
@@ -386,12 +377,7 @@ fn localize_writes_the_run_and_its_pictures() {
         "--cache-dir",
         cache.to_str().unwrap(),
     ];
-    let out = plumenet(&args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = plumenet_ok(&args);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         stdout.contains("estimate") && stdout.contains("error"),
@@ -407,9 +393,26 @@ fn localize_writes_the_run_and_its_pictures() {
         "trajectory",
         "samples",
         "sigmas",
+        "baselines",
+        "reality",
     ] {
         assert!(run.get(key).is_some(), "missing {key}");
     }
+    // The highest-reading baseline is the position of the largest recorded value.
+    let samples = run["samples"].as_array().unwrap();
+    let best = samples
+        .iter()
+        .max_by(|a, b| {
+            let v = |s: &serde_json::Value| s["value"].as_f64().unwrap();
+            v(a).total_cmp(&v(b))
+        })
+        .unwrap();
+    let highest = &run["baselines"]["highest_reading"];
+    assert_eq!(highest["x"], best["x"]);
+    let herr = (best["x"].as_f64().unwrap() - 4.1).hypot(best["y"].as_f64().unwrap() - 2.1);
+    assert!((highest["error_m"].as_f64().unwrap() - herr).abs() < 1e-9);
+    assert_eq!(run["reality"]["wind_scale"], 1.0);
+
     let iterations = run["iterations"].as_u64().unwrap() as usize;
     assert!((1..=4).contains(&iterations));
     let [ex, ey] = [0, 1].map(|k| run["estimate"][k].as_f64().unwrap());
@@ -443,7 +446,7 @@ fn replay_and_experiment_write_their_reports() {
     }
     std::fs::write(&log, csv).unwrap();
     let json_path = tmp.path().join("replay.json");
-    let out = plumenet(&[
+    plumenet_ok(&[
         "replay",
         "--solver",
         "--no-cache",
@@ -452,11 +455,6 @@ fn replay_and_experiment_write_their_reports() {
         "--json",
         json_path.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let rep: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
     let post = rep["posterior"].as_array().unwrap();
@@ -466,7 +464,7 @@ fn replay_and_experiment_write_their_reports() {
     assert!(rep["estimate"].as_array().unwrap().len() == 2);
 
     let dir = tmp.path().join("study");
-    let out = plumenet(&[
+    plumenet_ok(&[
         "experiment",
         "--solver",
         "--no-cache",
@@ -481,20 +479,99 @@ fn replay_and_experiment_write_their_reports() {
         "--out",
         dir.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let runs = std::fs::read_to_string(dir.join("runs.csv")).unwrap();
     assert_eq!(runs.lines().count(), 1 + 4);
-    assert!(runs.starts_with("layout,model,feature,sensor,run,seed,source_x"));
+    assert!(runs.starts_with("layout,model,reality,paths,feature,sensor,run,seed,source_x"));
     let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
     assert!(
-        summary.contains("| wind-tunnel | solver | rank | sensor-ii | 2 |"),
+        summary.contains("| wind-tunnel | solver | none | planner | rank | sensor-ii | 2 |"),
         "{summary}"
     );
+    assert!(summary.contains("| highest reading (m) | centre (m) |"));
     assert!(dir.join("boxplots.png").exists());
+}
+
+#[test]
+fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("survey.csv");
+    let out = plumenet_ok(&[
+        "survey",
+        "--source",
+        "4.5,2.3",
+        "--spacing",
+        "1",
+        "--reality-background",
+        "0.5",
+        "--seed",
+        "2",
+        "--out",
+        log.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("18 lanes") && stdout.contains("background 0.5"),
+        "{stdout}"
+    );
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(text.starts_with("t,x,y,value\n"));
+    let json_path = tmp.path().join("replay.json");
+    plumenet_ok(&[
+        "replay",
+        "--solver",
+        "--no-cache",
+        "--log",
+        log.to_str().unwrap(),
+        "--source",
+        "4.5,2.3",
+        "--json",
+        json_path.to_str().unwrap(),
+    ]);
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    assert_eq!(
+        rep["samples"].as_u64().unwrap() as usize,
+        text.lines().count() - 1
+    );
+    let [ex, ey] = [0, 1].map(|k| rep["estimate"][k].as_f64().unwrap());
+    assert!((rep["error_m"].as_f64().unwrap() - (ex - 4.5).hypot(ey - 2.3)).abs() < 1e-9);
+    for guess in ["highest_reading", "centre"] {
+        let g = &rep["baselines"][guess];
+        let e = (g["x"].as_f64().unwrap() - 4.5).hypot(g["y"].as_f64().unwrap() - 2.3);
+        assert!((g["error_m"].as_f64().unwrap() - e).abs() < 1e-9, "{guess}");
+    }
+
+    let dir = tmp.path().join("suite");
+    plumenet_ok(&[
+        "experiment",
+        "--solver",
+        "--no-cache",
+        "--mismatch",
+        "--paths",
+        "lawnmower",
+        "--survey-spacing",
+        "2",
+        "--runs",
+        "1",
+        "--features",
+        "rank",
+        "--sensors",
+        "sensor-ii",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    for reality in [
+        "| none |",
+        "| wind x0.5 |",
+        "| diffusivity x3 |",
+        "| meander 30° |",
+        "| background 1 |",
+        "| wind x0.5, diffusivity x3, meander 30°, background 1 |",
+    ] {
+        assert!(summary.contains(reality), "{reality} missing in {summary}");
+    }
+    assert_eq!(summary.matches("| survey |").count(), 6);
 }
 
 #[test]
@@ -531,4 +608,39 @@ fn bad_ste_input_fails_cleanly() {
         "0.5",
     ]);
     assert_clean_failure(&out, "rank tolerance must be a factor of at least 1");
+    let log = tmp.path().join("log.csv");
+    for (flags, needle) in [
+        (
+            &["--reality-wind-scale", "-1"][..],
+            "--reality-wind-scale must be a positive number",
+        ),
+        (
+            &["--reality-meander-deg", "120"][..],
+            "between 0 and 90 degrees",
+        ),
+        (&["--spacing", "40"][..], "does not fit the arena"),
+    ] {
+        let mut args = vec!["survey", "--source", "3,2", "--out", log.to_str().unwrap()];
+        args.extend_from_slice(flags);
+        assert_clean_failure(&plumenet(&args), needle);
+        assert!(!log.exists(), "no log after a failed survey");
+    }
+    let out = plumenet(&[
+        "localize",
+        "--solver",
+        "--no-cache",
+        "--source",
+        "3,2",
+        "--reality-background",
+        "-2",
+    ]);
+    assert_clean_failure(&out, "--reality-background must be zero or positive");
+    let out = plumenet(&[
+        "experiment",
+        "--solver",
+        "--mismatch",
+        "--reality-background",
+        "1",
+    ]);
+    assert_clean_failure(&out, "cannot be used with");
 }

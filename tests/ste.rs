@@ -22,7 +22,7 @@ use plumenet::ste::{
 use crate::common::wind_tunnel;
 
 /// The paper arena with the physics solver's bank, built once for all tests.
-fn world() -> &'static World {
+pub fn world() -> &'static World {
     static WORLD: OnceLock<World> = OnceLock::new();
     WORLD.get_or_init(|| {
         World::build(wind_tunnel(), &PhysicsSolver, 0.25, None)
@@ -818,7 +818,7 @@ fn downwind_starts_lie_near_the_outlet_whatever_the_wind() {
 /// run the same (paired) runs, and the summary keeps them apart.
 #[test]
 fn studies_are_paired_across_sites_and_summarised_per_site() {
-    use plumenet::ste::experiment::{StudySite, plan_runs, run_study, summarize};
+    use plumenet::ste::experiment::{Paths, StudySite, plan_runs, run_study, summarize};
     use plumenet::ste::run::StartRule;
     let plan = plan_runs(&[Feature::Value], &[SensorPreset::Calibrated], 2);
     let run = |model: &str| {
@@ -826,7 +826,7 @@ fn studies_are_paired_across_sites_and_summarised_per_site() {
             world: world(),
             layout: "wind-tunnel",
             model,
-            start: StartRule::Downwind,
+            paths: Paths::Planner(StartRule::Downwind),
         };
         run_study(site, &plan, 7, EpisodeConfig::new, || ()).unwrap()
     };

@@ -8,6 +8,7 @@ mod dataset;
 mod filament;
 mod frame;
 mod layout;
+mod reality;
 mod ste;
 mod surrogate;
 mod transport;

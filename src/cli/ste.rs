@@ -9,16 +9,20 @@ use serde_json::json;
 
 use plumenet::io;
 use plumenet::layout::Layout;
+use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::belief::{BeliefPlot, render_belief, write_episode_pictures};
 use plumenet::report::boxplot::{group_values, render_boxplots};
 use plumenet::report::{save_png, stack_vertical};
-use plumenet::ste::experiment::{RunRow, StudySite, plan_runs, plot_values, run_study, summarize};
+use plumenet::ste::experiment::{
+    Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
+};
 use plumenet::ste::replay::{read_log, replay};
 use plumenet::ste::run::{StartRule, derive_seed};
+use plumenet::ste::survey::{fly, lawnmower};
 use plumenet::ste::{
-    EpisodeConfig, Feature, PlannerKind, RobotParams, Sampling, SensorPreset, Sigmas, SteParams,
-    Termination, World, run_episode,
+    Baselines, EpisodeConfig, Feature, Mismatch, PlannerKind, Reality, RobotParams, Sampling,
+    SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
 };
 use plumenet::surrogate::Surrogate;
 
@@ -236,6 +240,52 @@ impl RunArgs {
     }
 }
 
+/// How the simulated reality departs from the plume model (all off by default).
+#[derive(Debug, Args)]
+pub struct RealityArgs {
+    /// Reality's wind speed as a multiple of the layout's (the model keeps the layout's).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    reality_wind_scale: f64,
+    /// Reality's diffusivity as a multiple of the layout's.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    reality_diffusivity_scale: f64,
+    /// Wander of reality's wind direction: an Ornstein-Uhlenbeck angle with this standard
+    /// deviation (degrees, at most 90) and a 20 s correlation time.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    reality_meander_deg: f64,
+    /// Recirculated gas: a uniform background in free space of this many times the fully mixed
+    /// concentration q / (U H), rising with a 60 s time constant.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    reality_background: f64,
+}
+
+impl RealityArgs {
+    /// The mismatch these flags ask for, validated.
+    pub fn mismatch(&self) -> Result<Mismatch> {
+        let m = Mismatch {
+            wind_scale: self.reality_wind_scale,
+            diffusivity_scale: self.reality_diffusivity_scale,
+            meander_deg: self.reality_meander_deg,
+            background: self.reality_background,
+        };
+        m.check()?;
+        Ok(m)
+    }
+}
+
+/// Prints the baselines beside an estimate.
+fn print_baselines(b: &Baselines) {
+    let show = |g: plumenet::ste::baseline::Guess| match g.error_m {
+        Some(e) => format!("({:.2}, {:.2}), error {e:.2} m", g.x, g.y),
+        None => format!("({:.2}, {:.2})", g.x, g.y),
+    };
+    println!(
+        "baselines: highest reading {}; arena centre {}",
+        show(b.highest_reading),
+        show(b.centre)
+    );
+}
+
 #[derive(Debug, Args)]
 pub struct LocalizeArgs {
     /// Layout JSON file.
@@ -259,6 +309,8 @@ pub struct LocalizeArgs {
     features: FeatureArgs,
     #[command(flatten)]
     run: RunArgs,
+    #[command(flatten)]
+    reality: RealityArgs,
     /// Seed of the plume, the sensor noise, the planner and the default start.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -274,7 +326,9 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     let source = [a.source.0, a.source.1];
     layout.check_source(source[0], source[1])?;
+    let mismatch = a.reality.mismatch()?;
     let (world, model_name) = a.plume.world(layout)?;
+    let world = world.with_mismatch(mismatch)?;
     let feature = Feature::from(a.feature);
     let config = a.run.config(a.features.params(feature), a.sensor.into());
     let start = match a.start {
@@ -304,6 +358,10 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         episode.samples.len(),
         episode.wall_time_s
     );
+    print_baselines(&episode.baselines);
+    if !mismatch.is_none() {
+        println!("reality departed from the model: {mismatch}");
+    }
     if let Some(dir) = &a.png_dir {
         let paths = write_episode_pictures(
             &world.layout,
@@ -333,6 +391,10 @@ pub struct ReplayArgs {
     /// Readings log, CSV with the columns t,x,y,value.
     #[arg(long)]
     log: PathBuf,
+    /// The true source "X,Y" (m), when known: errors are reported for the estimate and the
+    /// baselines.
+    #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
+    source: Option<(f64, f64)>,
     /// Gas feature.
     #[arg(long, value_enum, default_value_t = FeatureArg::Rank)]
     feature: FeatureArg,
@@ -354,19 +416,27 @@ pub struct ReplayArgs {
 pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
     let samples = read_log(&a.log)?;
+    let source = a.source.map(|(x, y)| [x, y]);
+    if let Some([x, y]) = source {
+        layout.check_source(x, y)?;
+    }
     let (world, model_name) = a.plume.world(layout)?;
     let feature = Feature::from(a.feature);
     let params = a.features.params(feature);
     let est = replay(Arc::clone(&world.sampler), params, a.robot_radius, &samples)?;
     let estimate = est.estimate();
+    let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
+    let baselines = Baselines::new(&world.layout, &samples, source)?;
     println!(
-        "{} readings, {}: estimate ({:.2}, {:.2}), entropy {:.2} nats",
+        "{} readings, {}: estimate ({:.2}, {:.2}){}, entropy {:.2} nats",
         samples.len(),
         feature.name(),
         estimate[0],
         estimate[1],
+        error_m.map_or(String::new(), |e| format!(", error {e:.2} m")),
         est.entropy()
     );
+    print_baselines(&baselines);
     if let Some(path) = &a.png {
         let title = format!(
             "replay  {}  estimate ({:.2}, {:.2})",
@@ -398,14 +468,86 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             .zip(est.posterior())
             .map(|(c, p)| json!({"x": c[0], "y": c[1], "p": p}))
             .collect();
-        let report = json!({
+        let mut report = json!({
             "estimate": estimate, "entropy": est.entropy(), "samples": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
-            "posterior": posterior,
+            "baselines": baselines, "posterior": posterior,
         });
+        if let (Some(s), Some(e)) = (source, error_m) {
+            report["source"] = json!(s);
+            report["error_m"] = json!(e);
+        }
         io::write_json(path, &report)?;
         println!("wrote {}", path.display());
     }
+    Ok(())
+}
+
+/// The survey pattern on the command line.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PatternArg {
+    /// Crosswind lanes, swept back and forth from the outlet upwind.
+    Lawnmower,
+}
+
+#[derive(Debug, Args)]
+pub struct SurveyArgs {
+    /// Layout JSON file.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// True source position "X,Y" (m).
+    #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
+    source: (f64, f64),
+    /// Survey pattern.
+    #[arg(long, value_enum, default_value_t = PatternArg::Lawnmower)]
+    pattern: PatternArg,
+    /// Lane spacing (m).
+    #[arg(long, default_value_t = 0.5)]
+    spacing: f64,
+    /// Sensor.
+    #[arg(long, value_enum, default_value_t = SensorArg::SensorII)]
+    sensor: SensorArg,
+    /// A noise-free sensor.
+    #[arg(long)]
+    noise_free: bool,
+    #[command(flatten)]
+    reality: RealityArgs,
+    /// Seed of the plume and the sensor noise.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The readings log to write (CSV t,x,y,value, as `replay` reads it).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn survey(a: SurveyArgs) -> Result<()> {
+    let layout = Layout::load(&a.layout)?;
+    let source = [a.source.0, a.source.1];
+    layout.check_source(source[0], source[1])?;
+    let mismatch = a.reality.mismatch()?;
+    let mut config = EpisodeConfig::new(Feature::Rank, a.sensor.into());
+    config.sensor_noise = !a.noise_free;
+    let plan = match a.pattern {
+        PatternArg::Lawnmower => lawnmower(&layout, &config.robot, a.spacing)?,
+    };
+    let wind = WindField::solve(&layout)?;
+    let reality = Reality::new(&layout, &wind, mismatch)?;
+    let samples = fly(&reality, &plan.path, source, &config.flight(), a.seed)?;
+    io::write_csv(&a.out, &samples)?;
+    let last = samples.last().map_or(0.0, |s| s.t);
+    println!(
+        "{} lanes{}, {:.1} m in {last:.0} s, {} readings; reality: {mismatch}",
+        plan.lanes,
+        if plan.skipped > 0 {
+            format!(" ({} unreachable stretches skipped)", plan.skipped)
+        } else {
+            String::new()
+        },
+        plumenet::ste::robot::path_length(&plan.path),
+        samples.len()
+    );
+    print_baselines(&Baselines::new(&layout, &samples, Some(source))?);
+    println!("wrote {}", a.out.display());
     Ok(())
 }
 
@@ -421,6 +563,19 @@ pub struct ExperimentArgs {
     /// Where robots start: anywhere free, or within 1.5 m of the outlet (the far downwind end).
     #[arg(long, value_enum, default_value_t = StartArg::Anywhere)]
     start: StartArg,
+    /// Whose paths: the planner's (the paper's study), or one lawnmower survey per layout whose
+    /// readings the STE takes at once (as `survey` then `replay`).
+    #[arg(long, value_enum, default_value_t = PathsArg::Planner)]
+    paths: PathsArg,
+    /// Lane spacing of the lawnmower survey (m).
+    #[arg(long, default_value_t = 0.5)]
+    survey_spacing: f64,
+    /// Run the mismatch suite: reality as the model, each knob alone at a strong setting (wind
+    /// x0.5, diffusivity x3, 30° meander, background 1), and all together.
+    #[arg(long, conflicts_with_all = ["reality_wind_scale", "reality_diffusivity_scale", "reality_meander_deg", "reality_background"])]
+    mismatch: bool,
+    #[command(flatten)]
+    reality: RealityArgs,
     /// Also run every run with the physics solver's bank (paired: the same sources, starts and
     /// noise), beside PlumeNet's.
     #[arg(long, conflicts_with = "solver")]
@@ -448,6 +603,15 @@ pub struct ExperimentArgs {
     run: RunArgs,
 }
 
+/// Whose paths a study's runs follow.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PathsArg {
+    /// The planner's, from a random start.
+    Planner,
+    /// A lawnmower survey.
+    Lawnmower,
+}
+
 /// Where robots start in a study.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum StartArg {
@@ -469,6 +633,18 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     if a.with_solver {
         models.push(true);
     }
+    let realities = if a.mismatch {
+        Mismatch::suite()
+    } else {
+        vec![a.reality.mismatch()?]
+    };
+    let robot = a
+        .run
+        .config(
+            SteParams::for_feature(Feature::Rank),
+            SensorPreset::SensorII,
+        )
+        .robot;
     let mut rows = Vec::new();
     for path in &a.layout {
         let layout = Layout::load(path)?;
@@ -476,23 +652,34 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
             || path.display().to_string(),
             |s| s.to_string_lossy().into(),
         );
+        let survey = match a.paths {
+            PathsArg::Planner => None,
+            PathsArg::Lawnmower => Some(lawnmower(&layout, &robot, a.survey_spacing)?),
+        };
+        let paths = match &survey {
+            None => Paths::Planner(start),
+            Some(s) => Paths::Survey(&s.path),
+        };
         for &solver in &models {
-            let (world, _) = a.plume.world_of(layout.clone(), solver)?;
-            let bar = super::progress_bar(plan.len(), "runs");
-            let site = StudySite {
-                world: &world,
-                layout: &name,
-                model: if solver { "solver" } else { "plumenet" },
-                start,
-            };
-            rows.extend(run_study(
-                site,
-                &plan,
-                a.seed,
-                |f, s| a.run.config(a.overrides.params(f), s),
-                || bar.inc(1),
-            )?);
-            bar.finish_and_clear();
+            let (model_world, _) = a.plume.world_of(layout.clone(), solver)?;
+            for &mismatch in &realities {
+                let world = model_world.with_mismatch(mismatch)?;
+                let bar = super::progress_bar(plan.len(), "runs");
+                let site = StudySite {
+                    world: &world,
+                    layout: &name,
+                    model: if solver { "solver" } else { "plumenet" },
+                    paths,
+                };
+                rows.extend(run_study(
+                    site,
+                    &plan,
+                    a.seed,
+                    |f, s| a.run.config(a.overrides.params(f), s),
+                    || bar.inc(1),
+                )?);
+                bar.finish_and_clear();
+            }
         }
     }
     let summary = summarize(&rows);
@@ -503,12 +690,16 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         buf.extend_from_slice(table.as_bytes());
         Ok(())
     })?;
-    let panel = |title: &str, metric: fn(&RunRow) -> f64| {
-        render_boxplots(title, &group_values(&plot_values(&rows, metric)))
+    let panel = |title: &str, metric: fn(&RunRow) -> f64, baselines: bool| {
+        render_boxplots(title, &group_values(&plot_values(&rows, metric, baselines)))
     };
     let plot = stack_vertical(&[
-        panel("localisation error (m)", |r| r.error_m),
-        panel("iterations", |r| r.iterations as f64),
+        panel(
+            "localisation error (m), with the highest-reading and centre baselines",
+            |r| r.error_m,
+            true,
+        ),
+        panel("iterations", |r| r.iterations as f64, false),
     ]);
     save_png(&plot, &a.out.join("boxplots.png"))?;
     print!("{table}");
@@ -517,21 +708,25 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
 }
 
 /// The study's summary as a Markdown table.
-fn summary_table(summary: &[plumenet::ste::experiment::SummaryRow]) -> String {
+fn summary_table(summary: &[SummaryRow]) -> String {
     let mut t = String::from(
-        "| layout | model | feature | sensor | runs | error mean ± std (m) | median (m) | iterations mean ± std | converged |\n|---|---|---|---|---|---|---|---|---|\n",
+        "| layout | model | reality | paths | feature | sensor | runs | error mean ± std (m) | median (m) | highest reading (m) | centre (m) | iterations mean ± std | converged |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for s in summary {
         t.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {:.2} ± {:.2} | {:.2} | {:.1} ± {:.1} | {:.0}% |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.2} ± {:.2} | {:.2} | {:.2} | {:.2} | {:.1} ± {:.1} | {:.0}% |\n",
             s.layout,
             s.model,
+            s.reality,
+            s.paths,
             s.feature,
             s.sensor,
             s.runs,
             s.error_mean_m,
             s.error_std_m,
             s.error_median_m,
+            s.highest_error_mean_m,
+            s.centre_error_mean_m,
             s.iterations_mean,
             s.iterations_std,
             100.0 * s.converged_share

@@ -18,6 +18,13 @@
 //! 97% walk the plume was so patchy (CV 2) that the sensor's nonlinearity pulled its average to
 //! a third of the mean near the source, a gap no plume model could bridge.
 //!
+//! Two departures from the mean field are available for sim-to-real studies, both off by
+//! default: the wind direction may wander (an Ornstein-Uhlenbeck angle, with standard deviation
+//! `meander_deg` and correlation time `meander_time_s`, turns the velocity that advects every
+//! filament), and a uniform background of recirculated gas may build up in free space, rising
+//! as `background * q / (U H) * (1 - exp(-t / background_time_s))` where `q / (U H)` is the fully
+//! mixed concentration (release rate over inlet speed times arena width across the wind).
+//!
 //! Side walls and obstacle faces reflect filaments (and the side walls reflect their kernels by
 //! images, so no mass leaks through a wall); filaments leave through the inlet (c = 0 there) and
 //! the outlet. Every random draw comes from a seeded ChaCha8 generator.
@@ -44,6 +51,16 @@ pub struct FilamentConfig {
     pub initial_sigma_m: f64,
     /// Integration time step (s); 0.1 s matches the sensor's 10 Hz.
     pub dt_s: f64,
+    /// Standard deviation of the wind direction's wander (degrees, at most 90; 0 keeps the
+    /// direction steady, as the plume model assumes).
+    pub meander_deg: f64,
+    /// Correlation time of the wander (s).
+    pub meander_time_s: f64,
+    /// Final level of the recirculated background, in units of the fully mixed concentration
+    /// `q / (U H)` (0 = none).
+    pub background: f64,
+    /// Time constant of the background's rise after the release starts (s).
+    pub background_time_s: f64,
 }
 
 impl Default for FilamentConfig {
@@ -54,6 +71,10 @@ impl Default for FilamentConfig {
             walk_fraction: 0.95,
             initial_sigma_m: 0.05,
             dt_s: 0.1,
+            meander_deg: 0.0,
+            meander_time_s: 20.0,
+            background: 0.0,
+            background_time_s: 60.0,
         }
     }
 }
@@ -79,6 +100,8 @@ pub struct FilamentPlume {
     filaments: Vec<Filament>,
     time: f64,
     pending: f64,
+    /// The wind direction's current deviation (rad).
+    meander: f64,
     rng: ChaCha8Rng,
 }
 
@@ -87,7 +110,8 @@ impl FilamentPlume {
     ///
     /// # Errors
     /// [`Error::Source`] when the source is not in free space; [`Error::Parameter`] for
-    /// non-positive rates, widths or time step, or a walk fraction outside `[0, 1]`.
+    /// non-positive rates, widths, time step or time constants, a walk fraction outside
+    /// `[0, 1]`, a meander outside `[0, 90]` degrees or a negative background.
     pub fn new(
         layout: &Layout,
         wind: &WindField,
@@ -101,15 +125,29 @@ impl FilamentPlume {
             config.release_rate_hz,
             config.initial_sigma_m,
             config.dt_s,
+            config.meander_time_s,
+            config.background_time_s,
         ];
-        if positive.iter().any(|v| !(v.is_finite() && *v > 0.0))
-            || !(0.0..=1.0).contains(&config.walk_fraction)
-        {
+        let valid = positive.iter().all(|v| v.is_finite() && *v > 0.0)
+            && (0.0..=1.0).contains(&config.walk_fraction)
+            && (0.0..=90.0).contains(&config.meander_deg)
+            && config.background.is_finite()
+            && config.background >= 0.0;
+        if !valid {
             return Err(Error::Parameter(format!(
                 "bad filament settings {config:?}"
             )));
         }
         let frame = Frame::of(layout);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        // The wander starts in its stationary distribution; no draw when it is off, so a
+        // steady plume's random stream is the same as before the option existed.
+        let meander = if config.meander_deg > 0.0 {
+            let n: f64 = StandardNormal.sample(&mut rng);
+            config.meander_deg.to_radians() * n
+        } else {
+            0.0
+        };
         Ok(Self {
             frame,
             layout: frame.layout_to_canonical(layout)?,
@@ -119,7 +157,8 @@ impl FilamentPlume {
             filaments: Vec::new(),
             time: 0.0,
             pending: 0.0,
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            meander,
+            rng,
         })
     }
 
@@ -138,9 +177,38 @@ impl FilamentPlume {
         self.filaments.is_empty()
     }
 
+    /// The wind direction's current deviation from the steady field (degrees).
+    pub fn meander_deg(&self) -> f64 {
+        self.meander.to_degrees()
+    }
+
+    /// The uniform background of recirculated gas in free space now (units/m^2).
+    pub fn background_level(&self) -> f64 {
+        let mixed = self.config.source_rate / (self.layout.wind_speed() * self.layout.height());
+        self.config.background * mixed * (1.0 - (-self.time / self.config.background_time_s).exp())
+    }
+
+    /// Advances the wind direction's Ornstein-Uhlenbeck wander by one step (exact in
+    /// distribution for any step) and returns its rotation `(cos, sin)`.
+    fn turn_wind(&mut self) -> (f64, f64) {
+        if self.config.meander_deg == 0.0 {
+            return (1.0, 0.0);
+        }
+        let keep = (-self.config.dt_s / self.config.meander_time_s).exp();
+        let n: f64 = StandardNormal.sample(&mut self.rng);
+        self.meander = keep * self.meander
+            + self.config.meander_deg.to_radians() * (1.0 - keep * keep).sqrt() * n;
+        (self.meander.cos(), self.meander.sin())
+    }
+
     /// Advances by one time step: release, advect, random-walk, reflect, remove.
     pub fn step(&mut self) {
         let dt = self.config.dt_s;
+        let (cos, sin) = self.turn_wind();
+        let velocity = |wind: &WindField, x: f64, y: f64| {
+            let (u, v) = wind.velocity_at(x, y);
+            (u * cos - v * sin, u * sin + v * cos)
+        };
         self.pending += self.config.release_rate_hz * dt;
         while self.pending >= 1.0 {
             self.pending -= 1.0;
@@ -154,10 +222,8 @@ impl FilamentPlume {
         let (w, h) = (self.layout.width(), self.layout.height());
         let mut kept = Vec::with_capacity(self.filaments.len());
         for f in std::mem::take(&mut self.filaments) {
-            let (u1, v1) = self.wind.velocity_at(f.x, f.y);
-            let (u2, v2) = self
-                .wind
-                .velocity_at(f.x + 0.5 * dt * u1, f.y + 0.5 * dt * v1);
+            let (u1, v1) = velocity(&self.wind, f.x, f.y);
+            let (u2, v2) = velocity(&self.wind, f.x + 0.5 * dt * u1, f.y + 0.5 * dt * v1);
             let nx: f64 = StandardNormal.sample(&mut self.rng);
             let ny: f64 = StandardNormal.sample(&mut self.rng);
             let x = f.x + dt * u2 + walk * nx;
@@ -228,7 +294,8 @@ impl FilamentPlume {
         }
     }
 
-    /// Instantaneous concentration (units/m^2) at a point; zero inside obstacles.
+    /// Instantaneous concentration (units/m^2) at a point, the background included; zero
+    /// inside obstacles.
     pub fn concentration_at(&self, x: f64, y: f64) -> f64 {
         let (x, y) = self.frame.to_canonical(x, y);
         let (j, i) = self.layout.cell_of(x, y);
@@ -239,7 +306,8 @@ impl FilamentPlume {
         let grow = 2.0 * (1.0 - self.config.walk_fraction) * self.layout.diffusivity();
         let s0 = self.config.initial_sigma_m * self.config.initial_sigma_m;
         let h = self.layout.height();
-        self.filaments
+        let plume: f64 = self
+            .filaments
             .iter()
             .map(|f| {
                 let var = s0 + grow * f.age;
@@ -263,6 +331,11 @@ impl FilamentPlume {
                     * mass
                     / (2.0 * std::f64::consts::PI * var)
             })
-            .sum()
+            .sum();
+        if self.config.background > 0.0 {
+            plume + self.background_level()
+        } else {
+            plume
+        }
     }
 }

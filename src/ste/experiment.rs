@@ -2,8 +2,11 @@
 //! and robot starts, run in parallel, summarised per layout, plume model, feature and sensor.
 //!
 //! Run `r` of a study with seed `S` uses the run seed `derive_seed(S, r)` for every feature,
-//! sensor and plume model: the same source, start, plume and sensor noise, so the comparison is
-//! paired. Sources are uniform over the prior's support (free space at least 0.25 m from walls
+//! sensor, plume model and reality: the same source, start, plume and sensor noise, so the
+//! comparison is paired. Runs either follow the planner ([`Paths::Planner`], the paper's study)
+//! or fly one fixed survey path whose readings the STE takes in one update
+//! ([`Paths::Survey`]); every row also carries the baselines' errors (highest reading, arena
+//! centre) on the same readings. Sources are uniform over the prior's support (free space at least 0.25 m from walls
 //! and obstacles), starts uniform over the positions the robot may occupy ([`StartRule`]), or
 //! over those near the outlet.
 
@@ -12,11 +15,15 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
 use crate::stats::{mean_std, median};
+use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
+use crate::ste::replay::replay;
+use crate::ste::robot::path_length;
 use crate::ste::run::{
     EpisodeConfig, StartRule, World, derive_seed, random_source, random_start, run_episode,
 };
 use crate::ste::sensor::SensorPreset;
+use crate::ste::survey::fly;
 
 /// One run of a study, as a CSV row.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -25,6 +32,10 @@ pub struct RunRow {
     pub layout: String,
     /// Plume model of the bank (`plumenet` or `solver`).
     pub model: String,
+    /// How reality departed from the model (`none`, or the knobs that were on).
+    pub reality: String,
+    /// Whose paths: `planner` or `survey`.
+    pub paths: String,
     /// Gas feature.
     pub feature: String,
     /// Sensor preset.
@@ -47,7 +58,15 @@ pub struct RunRow {
     pub estimate_y: f64,
     /// Localisation error (m).
     pub error_m: f64,
-    /// Iterations.
+    /// Position of the highest reading, x (m).
+    pub highest_x: f64,
+    /// Position of the highest reading, y (m).
+    pub highest_y: f64,
+    /// Error of the highest-reading baseline (m).
+    pub highest_error_m: f64,
+    /// Error of the arena-centre baseline (m).
+    pub centre_error_m: f64,
+    /// Iterations (0 for a survey, whose readings arrive in one update).
     pub iterations: usize,
     /// Whether the termination rule fired.
     pub converged: bool,
@@ -59,14 +78,18 @@ pub struct RunRow {
     pub wall_time_s: f64,
 }
 
-/// Mean and standard deviation of error and iterations of one layout, plume model, feature and
-/// sensor.
+/// Mean and standard deviation of error and iterations of one layout, plume model, reality,
+/// path kind, feature and sensor, with the baselines' mean errors on the same runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SummaryRow {
     /// Layout name.
     pub layout: String,
     /// Plume model.
     pub model: String,
+    /// How reality departed from the model.
+    pub reality: String,
+    /// Whose paths.
+    pub paths: String,
     /// Gas feature.
     pub feature: String,
     /// Sensor preset.
@@ -79,6 +102,10 @@ pub struct SummaryRow {
     pub error_std_m: f64,
     /// Median error (m).
     pub error_median_m: f64,
+    /// Mean error of the highest-reading baseline (m).
+    pub highest_error_mean_m: f64,
+    /// Mean error of the arena-centre baseline (m).
+    pub centre_error_mean_m: f64,
     /// Mean iterations.
     pub iterations_mean: f64,
     /// Standard deviation of the iterations.
@@ -103,17 +130,105 @@ pub fn plan_runs(
         .collect()
 }
 
-/// Where a study runs: the world (layout and bank), its names in the rows, and where robots start.
+/// Whose paths a study's runs follow.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Paths<'a> {
+    /// The planner's, iteration by iteration, from a random start (the paper's study).
+    Planner(StartRule),
+    /// This fixed survey path (e.g. [`crate::ste::survey::lawnmower`]), flown at the robot's
+    /// speed; the STE takes all its readings in one update.
+    Survey(&'a [[f64; 2]]),
+}
+
+impl Paths<'_> {
+    /// The name in the rows: `planner` or `survey`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Paths::Planner(_) => "planner",
+            Paths::Survey(_) => "survey",
+        }
+    }
+}
+
+/// Where a study runs: the world (layout, bank and reality), its names in the rows, and whose
+/// paths the robots follow.
 #[derive(Debug, Clone, Copy)]
 pub struct StudySite<'a> {
-    /// The layout and its bank.
+    /// The layout, its bank and its reality.
     pub world: &'a World,
     /// Layout name for the rows.
     pub layout: &'a str,
     /// Plume model name for the rows.
     pub model: &'a str,
-    /// Where robots start.
-    pub start: StartRule,
+    /// Whose paths.
+    pub paths: Paths<'a>,
+}
+
+/// What a study keeps of one run.
+struct Outcome {
+    start: [f64; 2],
+    estimate: [f64; 2],
+    error_m: f64,
+    baselines: Baselines,
+    iterations: usize,
+    converged: bool,
+    samples: usize,
+    distance_m: f64,
+    wall_time_s: f64,
+}
+
+/// Runs one run of a study at `source` with the run seed `seed`.
+fn run_one(
+    site: StudySite<'_>,
+    config: &EpisodeConfig,
+    source: [f64; 2],
+    seed: u64,
+) -> Result<Outcome> {
+    let world = site.world;
+    match site.paths {
+        Paths::Planner(rule) => {
+            let start = random_start(&world.layout, &config.robot, rule, derive_seed(seed, 11))?;
+            let ep = run_episode(world, config, source, start, seed, false)?;
+            let distance_m = ep
+                .trajectory
+                .windows(2)
+                .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
+                .sum();
+            Ok(Outcome {
+                start,
+                estimate: ep.estimate,
+                error_m: ep.error_m,
+                baselines: ep.baselines,
+                iterations: ep.iterations,
+                converged: ep.converged,
+                samples: ep.samples.len(),
+                distance_m,
+                wall_time_s: ep.wall_time_s,
+            })
+        }
+        Paths::Survey(path) => {
+            let clock = std::time::Instant::now();
+            let samples = fly(&world.reality, path, source, &config.flight(), seed)?;
+            let est = replay(
+                world.sampler.clone(),
+                config.ste,
+                config.robot.radius_m,
+                &samples,
+            )?;
+            let estimate = est.estimate();
+            Ok(Outcome {
+                start: path[0],
+                estimate,
+                error_m: (estimate[0] - source[0]).hypot(estimate[1] - source[1]),
+                baselines: Baselines::new(&world.layout, &samples, Some(source))?,
+                iterations: 0,
+                converged: false,
+                samples: samples.len(),
+                distance_m: path_length(path),
+                wall_time_s: clock.elapsed().as_secs_f64(),
+            })
+        }
+    }
 }
 
 /// Runs every planned run in parallel; `configure` gives the settings of a feature and sensor,
@@ -129,58 +244,57 @@ pub fn run_study(
     done: impl Fn() + Sync,
 ) -> Result<Vec<RunRow>> {
     let world = site.world;
+    let reality = world.reality.mismatch().to_string();
     plan.par_iter()
         .map(|&(feature, sensor, run)| {
             let config = configure(feature, sensor);
             let run_seed = derive_seed(seed, run as u64);
             let source = random_source(&world.layout, derive_seed(run_seed, 10))?;
-            let start = random_start(
-                &world.layout,
-                &config.robot,
-                site.start,
-                derive_seed(run_seed, 11),
-            )?;
-            let ep = run_episode(world, &config, source, start, run_seed, false)?;
+            let out = run_one(site, &config, source, run_seed)?;
             done();
-            let distance_m = ep
-                .trajectory
-                .windows(2)
-                .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
-                .sum();
+            let error = |g: crate::ste::baseline::Guess| g.error_m.unwrap_or(f64::NAN);
             Ok(RunRow {
                 layout: site.layout.into(),
                 model: site.model.into(),
+                reality: reality.clone(),
+                paths: site.paths.name().into(),
                 feature: feature.name().into(),
                 sensor: sensor.name().into(),
                 run,
                 seed: run_seed,
                 source_x: source[0],
                 source_y: source[1],
-                start_x: start[0],
-                start_y: start[1],
-                estimate_x: ep.estimate[0],
-                estimate_y: ep.estimate[1],
-                error_m: ep.error_m,
-                iterations: ep.iterations,
-                converged: ep.converged,
-                samples: ep.samples.len(),
-                distance_m,
-                wall_time_s: ep.wall_time_s,
+                start_x: out.start[0],
+                start_y: out.start[1],
+                estimate_x: out.estimate[0],
+                estimate_y: out.estimate[1],
+                error_m: out.error_m,
+                highest_x: out.baselines.highest_reading.x,
+                highest_y: out.baselines.highest_reading.y,
+                highest_error_m: error(out.baselines.highest_reading),
+                centre_error_m: error(out.baselines.centre),
+                iterations: out.iterations,
+                converged: out.converged,
+                samples: out.samples,
+                distance_m: out.distance_m,
+                wall_time_s: out.wall_time_s,
             })
         })
         .collect()
 }
 
-/// Summary per layout, plume model, feature and sensor, in the order they first appear in
-/// `rows`.
+/// Summary per layout, plume model, reality, path kind, feature and sensor, in the order they
+/// first appear in `rows`.
 pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
     let key = |r: &RunRow| {
-        (
+        [
             r.layout.clone(),
             r.model.clone(),
+            r.reality.clone(),
+            r.paths.clone(),
             r.feature.clone(),
             r.sensor.clone(),
-        )
+        ]
     };
     let mut groups = Vec::new();
     for r in rows {
@@ -196,13 +310,19 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
             let it: Vec<f64> = g.iter().map(|r| r.iterations as f64).collect();
             let (error_mean_m, error_std_m) = mean_std(&err);
             let (iterations_mean, iterations_std) = mean_std(&it);
-            let (layout, model, feature, sensor) = k;
+            let mean_of =
+                |f: fn(&RunRow) -> f64| mean_std(&g.iter().map(|r| f(r)).collect::<Vec<_>>()).0;
+            let [layout, model, reality, paths, feature, sensor] = k;
             SummaryRow {
                 runs: g.len(),
                 error_median_m: median(&err),
+                highest_error_mean_m: mean_of(|r| r.highest_error_m),
+                centre_error_mean_m: mean_of(|r| r.centre_error_m),
                 converged_share: g.iter().filter(|r| r.converged).count() as f64 / g.len() as f64,
                 layout,
                 model,
+                reality,
+                paths,
                 feature,
                 sensor,
                 error_mean_m,
@@ -214,22 +334,47 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
         .collect()
 }
 
+/// A text column of a row.
+type Column = fn(&RunRow) -> &str;
+/// A number of a row.
+type Metric = fn(&RunRow) -> f64;
+
 /// The values the study's box plots show, as `(group, series, value)`: one group per feature
-/// (with the layout and plume model when a study has several), one series per sensor; `metric`
-/// picks the value.
-pub fn plot_values(rows: &[RunRow], metric: fn(&RunRow) -> f64) -> Vec<(String, String, f64)> {
-    let several = |f: fn(&RunRow) -> &str| rows.iter().any(|r| f(r) != f(&rows[0]));
-    let (layouts, models) = (several(|r| &r.layout), several(|r| &r.model));
-    rows.iter()
-        .map(|r| {
-            let mut group = r.feature.clone();
-            if layouts {
-                group = format!("{group} {}", r.layout);
+/// (with the layout, plume model, reality and path kind when a study has several), one series
+/// per sensor; `metric` picks the value. With `baselines`, the highest-reading and arena-centre
+/// errors follow as groups of their own (over the runs of every feature).
+pub fn plot_values(rows: &[RunRow], metric: Metric, baselines: bool) -> Vec<(String, String, f64)> {
+    let several = |f: Column| rows.iter().any(|r| f(r) != f(&rows[0]));
+    let parts: [(bool, Column); 4] = [
+        (several(|r| &r.layout), |r| &r.layout),
+        (several(|r| &r.model), |r| &r.model),
+        (several(|r| &r.reality), |r| &r.reality),
+        (several(|r| &r.paths), |r| &r.paths),
+    ];
+    let group = |name: &str, r: &RunRow| {
+        let mut group = name.to_string();
+        for (on, part) in parts {
+            if on {
+                group = format!("{group} {}", part(r));
             }
-            if models {
-                group = format!("{group} {}", r.model);
-            }
-            (group, r.sensor.clone(), metric(r))
-        })
-        .collect()
+        }
+        group
+    };
+    let mut values: Vec<(String, String, f64)> = rows
+        .iter()
+        .map(|r| (group(&r.feature, r), r.sensor.clone(), metric(r)))
+        .collect();
+    if baselines {
+        let guesses: [(&str, Metric); 2] = [
+            ("highest reading", |r| r.highest_error_m),
+            ("centre", |r| r.centre_error_m),
+        ];
+        for (name, error) in guesses {
+            values.extend(
+                rows.iter()
+                    .map(|r| (group(name, r), r.sensor.clone(), error(r))),
+            );
+        }
+    }
+    values
 }

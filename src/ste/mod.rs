@@ -3,22 +3,29 @@
 //! [`sensor`] simulates the MOX sensor, [`features`] extracts the four gas features,
 //! [`sampler`] reads the bank at sample positions, [`posterior`] holds the Bayesian filter and
 //! the termination rule, [`robot`] the occupancy grid and A* paths, [`planner`] the belief
-//! clustering and baseline planners, [`run`] one simulated episode and [`replay`] the STE over
-//! a logged run.
+//! clustering and baseline planners, [`reality`] what the robot senses (and how it may depart
+//! from the model), [`run`] one simulated episode, [`survey`] a raster survey flown through
+//! reality, [`replay`] the STE over a logged run, and [`baseline`] the simple guesses every
+//! report shows beside the STE.
 
+pub mod baseline;
 pub mod experiment;
 pub mod features;
 pub mod planner;
 pub mod posterior;
+pub mod reality;
 pub mod replay;
 pub mod robot;
 pub mod run;
 pub mod sampler;
 pub mod sensor;
+pub mod survey;
 
+pub use baseline::Baselines;
 pub use features::{Feature, FeatureParams, FeatureTrack};
 pub use planner::{Planner, PlannerKind};
 pub use posterior::{Estimator, Sample, Sigmas, SteParams, Termination};
+pub use reality::{Mismatch, Reality};
 pub use robot::{Occupancy, RobotParams, Sampling};
 pub use run::{Episode, EpisodeConfig, World, run_episode};
 pub use sampler::FieldSampler;

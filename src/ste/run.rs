@@ -21,15 +21,16 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::Layout;
-use crate::physics::filament::{FilamentConfig, FilamentPlume};
 use crate::physics::wind::WindField;
 use crate::plume::{PlumeModel, cached_bank};
+use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
 use crate::ste::planner::{Planner, PlannerKind};
 use crate::ste::posterior::{Estimator, Sample, SteParams, Termination, prior_support};
-use crate::ste::robot::{Occupancy, RobotParams, Sampling, path_length, point_at};
+use crate::ste::reality::{Field, Flight, Mismatch, Reality};
+use crate::ste::robot::{Occupancy, RobotParams, path_length};
 use crate::ste::sampler::FieldSampler;
-use crate::ste::sensor::{MoxSensor, SensorPreset};
+use crate::ste::sensor::SensorPreset;
 
 /// Width of the boundary band the prior excludes (m): one candidate spacing.
 pub const PRIOR_BAND_M: f64 = 0.25;
@@ -38,15 +39,18 @@ pub const PRIOR_BAND_M: f64 = 0.25;
 /// time constants, so the sensor has settled.
 pub const SENSOR_SETTLE_S: f64 = 20.0;
 
-/// The world a run happens in: the layout, its wind and the plume bank of the model.
+/// The world a run happens in: the layout, its wind, the plume bank of the model, and the
+/// reality the robot senses.
 #[derive(Debug, Clone)]
 pub struct World {
     /// The arena.
     pub layout: Layout,
-    /// Its steady wind (drives the filament plume).
+    /// Its steady wind, as the plume model assumes it.
     pub wind: WindField,
     /// The plume model's bank, ready for sampling.
     pub sampler: Arc<FieldSampler>,
+    /// What the robot senses (the model on average unless a [`Mismatch`] is set).
+    pub reality: Arc<Reality>,
 }
 
 impl World {
@@ -75,14 +79,27 @@ impl World {
         };
         let sampler = Arc::new(FieldSampler::new(&layout, &bank)?);
         let wind = WindField::solve(&layout)?;
+        let reality = Arc::new(Reality::new(&layout, &wind, Mismatch::NONE)?);
         Ok((
             Self {
                 layout,
                 wind,
                 sampler,
+                reality,
             },
             hit,
         ))
+    }
+
+    /// The same world (layout and bank) with reality departing from the model by `mismatch`.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for bad knobs, and the wind solver's errors.
+    pub fn with_mismatch(&self, mismatch: Mismatch) -> Result<Self> {
+        Ok(Self {
+            reality: Arc::new(Reality::new(&self.layout, &self.wind, mismatch)?),
+            ..self.clone()
+        })
     }
 }
 
@@ -106,6 +123,16 @@ pub struct EpisodeConfig {
 }
 
 impl EpisodeConfig {
+    /// How the robot senses in these settings.
+    pub fn flight(&self) -> Flight {
+        Flight {
+            sensor: self.sensor,
+            sensor_noise: self.sensor_noise,
+            robot: self.robot,
+            warmup_s: self.warmup_s,
+        }
+    }
+
     /// The defaults: sense-in-motion, belief clustering, a noisy sensor, 60 s warm-up.
     pub fn new(feature: Feature, sensor: SensorPreset) -> Self {
         Self {
@@ -172,6 +199,10 @@ pub struct Episode {
     pub history: Vec<IterationRecord>,
     /// Final posterior over the candidates.
     pub posterior: Vec<f64>,
+    /// The simple guesses beside the estimate (highest reading, arena centre), with errors.
+    pub baselines: Baselines,
+    /// How reality departed from the plume model.
+    pub reality: Mismatch,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
 }
@@ -252,76 +283,6 @@ pub fn random_source(layout: &Layout, seed: u64) -> Result<[f64; 2]> {
     })
 }
 
-/// The robot, the plume it senses and the sensor, advancing together tick by tick.
-struct Field {
-    plume: FilamentPlume,
-    sensor: MoxSensor,
-    noise: ChaCha8Rng,
-    tick: f64,
-    time: f64,
-    position: [f64; 2],
-    trajectory: Vec<[f64; 3]>,
-}
-
-impl Field {
-    /// One tick at `position`: the plume moves, the robot is there, the sensor reads.
-    fn tick(&mut self, position: [f64; 2]) -> Sample {
-        self.plume.step();
-        self.time += self.tick;
-        self.position = position;
-        self.trajectory.push([self.time, position[0], position[1]]);
-        let c = self.plume.concentration_at(position[0], position[1]);
-        let value = self.sensor.sample(c, self.tick, &mut self.noise);
-        Sample {
-            t: self.time,
-            x: position[0],
-            y: position[1],
-            value,
-        }
-    }
-
-    /// Drives a path and returns the recorded readings.
-    fn drive(&mut self, path: &[[f64; 2]], robot: &RobotParams) -> Vec<Sample> {
-        let len = path_length(path);
-        let step = robot.max_speed_mps * robot.tick_s;
-        let ticks = (len / step).ceil() as usize;
-        match robot.sampling {
-            Sampling::InMotion => (1..=ticks)
-                .map(|k| self.tick(point_at(path, (k as f64 * step).min(len))))
-                .collect(),
-            Sampling::StopSenseGo {
-                spacing_m,
-                settle_s,
-                dwell_s,
-            } => {
-                let stops = (len / spacing_m).ceil().max(1.0) as usize;
-                let mut out = Vec::with_capacity(stops);
-                let mut s = 0.0;
-                for k in 1..=stops {
-                    let target = (k as f64 * spacing_m).min(len);
-                    while s < target {
-                        s = (s + step).min(target);
-                        self.tick(point_at(path, s));
-                    }
-                    let here = point_at(path, target);
-                    for _ in 0..(settle_s / robot.tick_s).round() as usize {
-                        self.tick(here);
-                    }
-                    let n = ((dwell_s / robot.tick_s).round() as usize).max(1);
-                    let mean = (0..n).map(|_| self.tick(here).value).sum::<f64>() / n as f64;
-                    out.push(Sample {
-                        t: self.time,
-                        x: here[0],
-                        y: here[1],
-                        value: mean,
-                    });
-                }
-                out
-            }
-        }
-    }
-}
-
 /// Runs one localisation episode.
 ///
 /// # Errors
@@ -351,35 +312,7 @@ pub fn run_episode(
             ),
         });
     }
-    let filaments = FilamentConfig {
-        dt_s: config.robot.tick_s,
-        ..FilamentConfig::default()
-    };
-    let mut plume = FilamentPlume::new(
-        layout,
-        &world.wind,
-        (source[0], source[1]),
-        filaments,
-        derive_seed(seed, 1),
-    )?;
-    // The robot waits at its start for the last part of the warm-up, so that its sensor is in
-    // equilibrium with the air there when the run begins.
-    let settle = SENSOR_SETTLE_S.min(config.warmup_s);
-    plume.advance(config.warmup_s - settle);
-    let mut field = Field {
-        plume,
-        sensor: MoxSensor::preset(config.sensor, config.sensor_noise)?,
-        noise: ChaCha8Rng::seed_from_u64(derive_seed(seed, 2)),
-        tick: config.robot.tick_s,
-        time: 0.0,
-        position: start,
-        trajectory: Vec::new(),
-    };
-    for _ in 0..(settle / config.robot.tick_s).round() as usize {
-        field.tick(start);
-    }
-    field.time = 0.0;
-    field.trajectory = vec![[0.0, start[0], start[1]]];
+    let mut field = Field::start(&world.reality, &config.flight(), source, start, seed)?;
     let support = prior_support(
         layout,
         world.sampler.candidates(),
@@ -393,7 +326,7 @@ pub fn run_episode(
     let mut converged = false;
     let mut recent = Vec::new();
     for iteration in 1..=config.termination.max_iterations {
-        let plan = planner.next(&est, &occupancy, field.position)?;
+        let plan = planner.next(&est, &occupancy, field.position())?;
         let fresh = field.drive(&plan.path, &config.robot);
         est.update(&fresh)?;
         samples.extend(fresh);
@@ -405,7 +338,7 @@ pub fn run_episode(
             entropy: est.entropy(),
             estimate: est.estimate(),
             posterior: keep_posteriors.then(|| est.posterior().to_vec()),
-            trajectory_len: field.trajectory.len(),
+            trajectory_len: field.trajectory().len(),
         });
         if config.termination.converged(&est, &recent) {
             converged = true;
@@ -414,6 +347,7 @@ pub fn run_episode(
         recent.push((config.termination.concentrated(&est), est.estimate()));
     }
     let estimate = est.estimate();
+    let baselines = Baselines::new(layout, &samples, Some(source))?;
     Ok(Episode {
         source,
         start,
@@ -423,11 +357,13 @@ pub fn run_episode(
         converged,
         config: *config,
         seed,
-        trajectory: field.trajectory,
+        trajectory: field.into_trajectory(),
         samples,
         edf: est.measured_edf().to_vec(),
         history,
         posterior: est.posterior().to_vec(),
+        baselines,
+        reality: world.reality.mismatch(),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })
 }

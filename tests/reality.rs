@@ -1,0 +1,338 @@
+//! Mismatched realities, the baselines and raster surveys: each knob does what it says and
+//! nothing else, against closed forms (the fully mixed concentration, the Ornstein-Uhlenbeck
+//! process's moments) and brute force.
+
+use plumenet::physics::filament::{FilamentConfig, FilamentPlume};
+use plumenet::physics::wind::WindField;
+use plumenet::ste::posterior::Sample;
+use plumenet::ste::robot::Occupancy;
+use plumenet::ste::survey::{fly, lawnmower};
+use plumenet::ste::{Baselines, EpisodeConfig, Feature, Mismatch, Reality, SensorPreset};
+
+use crate::common::{empty_tunnel, wind_tunnel};
+
+const SOURCE: (f64, f64) = (3.0, 2.0);
+
+#[test]
+fn the_background_adds_exactly_its_level_and_leaves_the_plume_alone() {
+    let l = wind_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    let with = FilamentConfig {
+        background: 1.0,
+        ..FilamentConfig::default()
+    };
+    let mut plain = FilamentPlume::new(&l, &w, SOURCE, FilamentConfig::default(), 5).unwrap();
+    let mut mixed = FilamentPlume::new(&l, &w, SOURCE, with, 5).unwrap();
+    // q / (U H) with q = 1, U = 0.75 m/s, H = 4 m, risen for one time constant.
+    let full = 1.0 / (0.75 * 4.0);
+    for step in 1..=600 {
+        plain.step();
+        mixed.step();
+        let t = 0.1 * f64::from(step);
+        let level = full * (1.0 - (-t / 60.0).exp());
+        assert!((mixed.background_level() - level).abs() < 1e-12 * full);
+        if step % 100 == 0 {
+            for (x, y) in [(1.0, 2.0), (6.0, 2.0), (10.0, 0.5), (16.0, 3.5)] {
+                let extra = mixed.concentration_at(x, y) - plain.concentration_at(x, y);
+                assert!(
+                    (extra - level).abs() < 1e-9,
+                    "({x}, {y}): {extra} vs {level}"
+                );
+            }
+            assert_eq!(
+                mixed.concentration_at(7.0, 1.2),
+                0.0,
+                "none inside obstacles"
+            );
+        }
+    }
+    assert_eq!(plain.len(), mixed.len(), "the same filaments");
+}
+
+#[test]
+fn the_meander_is_an_ornstein_uhlenbeck_angle_and_off_by_default() {
+    let l = empty_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    let config = FilamentConfig {
+        meander_deg: 30.0,
+        ..FilamentConfig::default()
+    };
+    let mut plume = FilamentPlume::new(&l, &w, SOURCE, config, 11).unwrap();
+    // 16 000 s = 800 correlation times, sampled every 2 s.
+    let angles: Vec<f64> = (0..8000)
+        .map(|_| {
+            plume.advance(2.0);
+            plume.meander_deg()
+        })
+        .collect();
+    let n = angles.len() as f64;
+    let mean = angles.iter().sum::<f64>() / n;
+    let var = angles.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / n;
+    assert!(
+        (var.sqrt() - 30.0).abs() < 3.0,
+        "standard deviation {}",
+        var.sqrt()
+    );
+    assert!(mean.abs() < 6.0, "mean {mean}");
+    // Autocorrelation at a lag of 20 s (10 samples) is exp(-1).
+    let lag = 10;
+    let cov = angles
+        .windows(lag + 1)
+        .map(|w| (w[0] - mean) * (w[lag] - mean))
+        .sum::<f64>()
+        / (n - lag as f64);
+    let rho = cov / var;
+    assert!(
+        (rho - (-1.0f64).exp()).abs() < 0.1,
+        "lag-20 s correlation {rho}"
+    );
+    let steady = FilamentPlume::new(&l, &w, SOURCE, FilamentConfig::default(), 11).unwrap();
+    assert_eq!(steady.meander_deg(), 0.0);
+}
+
+#[test]
+fn reality_scales_wind_and_diffusivity_and_keeps_mass_flux() {
+    let l = empty_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    // Far downwind in an empty arena the crosswind mean of the time average is q / (U H): the
+    // whole release crosses every section, carried by the reality's wind, not the layout's.
+    let section_mean = |mismatch: Mismatch| {
+        let reality = Reality::new(&l, &w, mismatch).unwrap();
+        let mut plume = reality.plume([SOURCE.0, SOURCE.1], 0.1, 3).unwrap();
+        plume.advance(80.0);
+        let ys: Vec<f64> = (0..16).map(|k| 0.125 + 0.25 * f64::from(k)).collect();
+        let steps = 4000;
+        let mut sum = 0.0;
+        for _ in 0..steps {
+            plume.step();
+            sum += ys
+                .iter()
+                .map(|&y| plume.concentration_at(12.0, y))
+                .sum::<f64>();
+        }
+        sum / (steps * ys.len()) as f64
+    };
+    for (scale, d) in [(1.0, 1.0), (0.5, 3.0)] {
+        let m = Mismatch {
+            wind_scale: scale,
+            diffusivity_scale: d,
+            ..Mismatch::NONE
+        };
+        let reality = Reality::new(&l, &w, m).unwrap();
+        assert_eq!(reality.layout().wind_speed(), 0.75 * scale);
+        assert!((reality.layout().diffusivity() - 0.05 * d).abs() < 1e-15);
+        let expected = 1.0 / (0.75 * scale * 4.0);
+        let got = section_mean(m);
+        assert!(
+            (got / expected - 1.0).abs() < 0.12,
+            "wind x{scale}: section mean {got}, expected {expected}"
+        );
+    }
+}
+
+#[test]
+fn bad_knobs_are_named() {
+    let l = empty_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    for (m, needle) in [
+        (
+            Mismatch {
+                wind_scale: -1.0,
+                ..Mismatch::NONE
+            },
+            "--reality-wind-scale",
+        ),
+        (
+            Mismatch {
+                diffusivity_scale: f64::NAN,
+                ..Mismatch::NONE
+            },
+            "--reality-diffusivity-scale",
+        ),
+        (
+            Mismatch {
+                meander_deg: 91.0,
+                ..Mismatch::NONE
+            },
+            "between 0 and 90",
+        ),
+        (
+            Mismatch {
+                background: -0.1,
+                ..Mismatch::NONE
+            },
+            "--reality-background",
+        ),
+    ] {
+        let err = Reality::new(&l, &w, m).unwrap_err().to_string();
+        assert!(err.contains(needle), "{err}");
+    }
+    let suite = Mismatch::suite();
+    assert_eq!(suite.len(), 6);
+    assert!(suite[0].is_none() && suite[1..].iter().all(|m| !m.is_none()));
+    assert_eq!(suite[0].to_string(), "none");
+    assert_eq!(
+        suite[5].to_string(),
+        "wind x0.5, diffusivity x3, meander 30°, background 1"
+    );
+}
+
+#[test]
+fn baselines_are_the_highest_reading_and_the_centre() {
+    let l = wind_tunnel();
+    let samples: Vec<Sample> = (0..50)
+        .map(|k| {
+            let x = 1.0 + 0.3 * f64::from(k);
+            Sample {
+                t: 0.1 * f64::from(k),
+                x,
+                y: 2.0,
+                value: (-(x - 6.1).powi(2)).exp(),
+            }
+        })
+        .collect();
+    let best = samples
+        .iter()
+        .max_by(|a, b| a.value.total_cmp(&b.value))
+        .unwrap();
+    let b = Baselines::new(&l, &samples, Some([5.0, 1.0])).unwrap();
+    assert_eq!([b.highest_reading.x, b.highest_reading.y], [best.x, best.y]);
+    let err = (best.x - 5.0).hypot(best.y - 1.0);
+    assert!((b.highest_reading.error_m.unwrap() - err).abs() < 1e-12);
+    assert_eq!([b.centre.x, b.centre.y], [9.0, 2.0]);
+    assert!((b.centre.error_m.unwrap() - 4.0f64.hypot(1.0)).abs() < 1e-12);
+    let unknown = Baselines::new(&l, &samples, None).unwrap();
+    assert!(unknown.highest_reading.error_m.is_none());
+    assert!(Baselines::new(&l, &[], None).is_err());
+}
+
+#[test]
+fn lawnmower_lanes_cross_the_wind_in_free_space_and_bad_spacings_fail() {
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let robot = config.robot;
+    for from in ["west", "north"] {
+        let text =
+            std::fs::read_to_string(crate::common::repo_path("data/layouts/wind-tunnel.json"))
+                .unwrap();
+        let mut spec: serde_json::Value = serde_json::from_str(&text).unwrap();
+        spec["wind"]["from"] = serde_json::json!(from);
+        let l = plumenet::layout::Layout::from_json(&spec.to_string()).unwrap();
+        let survey = lawnmower(&l, &robot, 0.5).unwrap();
+        let occupancy = Occupancy::new(&l, robot.radius_m + robot.clearance_m).unwrap();
+        for pair in survey.path.windows(2) {
+            assert!(occupancy.segment_free(pair[0], pair[1]), "{from}: {pair:?}");
+        }
+        // Crosswind lanes every 0.5 m along the wind: 36 along the 18 m of a west wind, 8
+        // across the 4 m the wind blows along from the north.
+        assert_eq!(survey.lanes, if from == "west" { 36 } else { 8 }, "{from}");
+        assert_eq!(survey.skipped, 0);
+        // The first lane is half a spacing before the outlet.
+        let first = survey.path[0];
+        match from {
+            "west" => assert!((first[0] - 17.75).abs() < 1e-9),
+            _ => assert!((first[1] - 0.25).abs() < 1e-9),
+        }
+    }
+    let l = wind_tunnel();
+    for bad in [0.0, -1.0, 0.1, 19.0, f64::NAN] {
+        let err = lawnmower(&l, &robot, bad).unwrap_err().to_string();
+        assert!(err.contains("does not fit the arena"), "{err}");
+    }
+}
+
+#[test]
+fn a_survey_reads_every_tick_along_its_path() {
+    let l = wind_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let survey = lawnmower(&l, &config.robot, 1.0).unwrap();
+    let flight = config.flight();
+    let reality = Reality::new(&l, &w, Mismatch::NONE).unwrap();
+    let samples = fly(&reality, &survey.path, [4.5, 2.3], &flight, 2).unwrap();
+    let length = plumenet::ste::robot::path_length(&survey.path);
+    let step = config.robot.max_speed_mps * config.robot.tick_s;
+    assert_eq!(samples.len(), (length / step).ceil() as usize);
+    assert!(samples.windows(2).all(|p| p[1].t > p[0].t));
+    assert_eq!(
+        samples,
+        fly(&reality, &survey.path, [4.5, 2.3], &flight, 2).unwrap()
+    );
+    // The plume is there: readings downwind of the source beat those upwind of it.
+    let mean = |keep: &dyn Fn(&Sample) -> bool| {
+        let v: Vec<f64> = samples
+            .iter()
+            .filter(|s| keep(s))
+            .map(|s| s.value)
+            .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    assert!(mean(&|s| s.x > 5.0 && s.x < 9.0) > mean(&|s| s.x < 3.5));
+    assert!(fly(&reality, &survey.path, [7.0, 1.2], &flight, 2).is_err());
+}
+
+/// A survey study runs the same sources as the planner's (paired), its rows are the survey
+/// flown and replayed by hand, and every row's baselines agree with its readings.
+#[test]
+fn survey_studies_replay_the_flown_survey_and_carry_the_baselines() {
+    use plumenet::ste::experiment::{Paths, StudySite, plan_runs, run_study, summarize};
+    use plumenet::ste::replay::replay;
+    use plumenet::ste::run::StartRule;
+    let world = crate::ste::world();
+    let meander = world
+        .with_mismatch(Mismatch {
+            meander_deg: 20.0,
+            ..Mismatch::NONE
+        })
+        .unwrap();
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let plan = plan_runs(&[Feature::Rank], &[SensorPreset::SensorII], 2);
+    let study = |w, paths| {
+        let site = StudySite {
+            world: w,
+            layout: "wind-tunnel",
+            model: "solver",
+            paths,
+        };
+        run_study(site, &plan, 4, EpisodeConfig::new, || ()).unwrap()
+    };
+    let flown = study(&meander, Paths::Survey(&survey.path));
+    let planned = study(world, Paths::Planner(StartRule::Anywhere));
+    for (s, p) in flown.iter().zip(&planned) {
+        assert_eq!((s.source_x, s.source_y), (p.source_x, p.source_y));
+        assert_eq!((s.paths.as_str(), p.paths.as_str()), ("survey", "planner"));
+        assert_eq!(
+            (s.reality.as_str(), p.reality.as_str()),
+            ("meander 20°", "none")
+        );
+        assert_eq!(s.iterations, 0);
+        let source = [s.source_x, s.source_y];
+        let flight = config.flight();
+        let samples = fly(&meander.reality, &survey.path, source, &flight, s.seed).unwrap();
+        let est = replay(
+            meander.sampler.clone(),
+            config.ste,
+            config.robot.radius_m,
+            &samples,
+        )
+        .unwrap();
+        assert_eq!([s.estimate_x, s.estimate_y], est.estimate());
+        let b = Baselines::new(&world.layout, &samples, Some(source)).unwrap();
+        assert_eq!(
+            [s.highest_x, s.highest_y],
+            [b.highest_reading.x, b.highest_reading.y]
+        );
+        for r in [s, p] {
+            let e = (r.highest_x - r.source_x).hypot(r.highest_y - r.source_y);
+            assert!((r.highest_error_m - e).abs() < 1e-12);
+            let c = (9.0 - r.source_x).hypot(2.0 - r.source_y);
+            assert!((r.centre_error_m - c).abs() < 1e-12);
+        }
+    }
+    let rows: Vec<_> = flown.iter().chain(&planned).cloned().collect();
+    let summary = summarize(&rows);
+    assert_eq!(summary.len(), 2);
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let highest: Vec<f64> = flown.iter().map(|r| r.highest_error_m).collect();
+    assert!((summary[0].highest_error_mean_m - mean(&highest)).abs() < 1e-12);
+}
