@@ -850,3 +850,67 @@ fn studies_are_paired_across_sites_and_summarised_per_site() {
     assert_eq!(summary[1].model, "solver");
     assert!(summary.iter().all(|s| s.runs == 2));
 }
+
+/// The drifting clean-air baseline: a brute-force window percentile, a slow drift under clean
+/// air ties as clean air where one baseline for the run would not, and a plume passage is
+/// kept by its excess over the local baseline.
+#[test]
+fn drifting_clean_air_ties_follow_a_slow_drift() {
+    use plumenet::ste::posterior::{clean_air_ties, drifting_clean_air_ties};
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let times: Vec<f64> = (0..1200).map(|k| 0.1 * f64::from(k)).collect();
+    // Clean air whose baseline rises by 0.3 over 120 s (30 noise levels over the run, 2.5 in
+    // the 10 s window), a plume passage at 60-64 s.
+    let raw: Vec<f64> = times
+        .iter()
+        .map(|&t| {
+            let gas = if (60.0..64.0).contains(&t) { 1.0 } else { 0.0 };
+            0.3 + 0.0025 * t
+                + gas
+                + rand_distr::Distribution::<f64>::sample(&rand_distr::StandardNormal, &mut rng)
+                    * 0.01
+        })
+        .collect();
+    let mut drifting = raw.clone();
+    drifting_clean_air_ties(&mut drifting, &times, 10.0);
+    let mut global = raw.clone();
+    clean_air_ties(&mut global);
+    let clean = |k: usize| !(600..640).contains(&k);
+    let tied = |v: &[f64], tie: f64| (0..v.len()).filter(|&k| clean(k) && v[k] == tie).count();
+    let global_tie = global.iter().copied().fold(f64::INFINITY, f64::min);
+    // Most clean readings tie (those more than about one noise level above the drift's local
+    // low do not), against few with one baseline for the run.
+    assert!(tied(&drifting, 0.0) >= 870, "{}", tied(&drifting, 0.0));
+    assert!(
+        tied(&global, global_tie) < 200,
+        "{}",
+        tied(&global, global_tie)
+    );
+    assert!(
+        (600..640).all(|k| (drifting[k] - 1.0).abs() < 0.1),
+        "excess kept"
+    );
+    // Brute force: every reading against the 5th percentile of its own window.
+    let diffs: Vec<f64> = raw.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    let noise = 1.4826 * plumenet::stats::median(&diffs) / std::f64::consts::SQRT_2;
+    for (k, &t) in times.iter().enumerate().step_by(37) {
+        let mut w: Vec<f64> = times
+            .iter()
+            .zip(&raw)
+            .filter(|(s, _)| **s >= t - 5.0 && **s <= t + 5.0)
+            .map(|(_, v)| *v)
+            .collect();
+        w.sort_by(f64::total_cmp);
+        let base = w[(0.05 * (w.len() - 1) as f64).round() as usize];
+        let want = if raw[k] <= base + 3.0 * noise {
+            0.0
+        } else {
+            raw[k] - base
+        };
+        assert!((drifting[k] - want).abs() < 1e-12, "reading {k}");
+    }
+    let mut params = SteParams::for_feature(Feature::Rank);
+    params.clean_air_window_s = Some(-1.0);
+    let err = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap_err();
+    assert!(err.to_string().contains("clean-air window"), "{err}");
+}

@@ -107,6 +107,10 @@ pub struct FeatureArgs {
     /// share of estimates within it adds to each rank's model error (1 turns it off).
     #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
     rank_tolerance: f64,
+    /// Rank only: follow a drifting clean-air baseline, taken in a centred window of this many
+    /// seconds (default: one baseline for the whole run).
+    #[arg(long)]
+    clean_air_window: Option<f64>,
     /// Rank only: the paper's rank likelihood, without our clean-air ties and rank tolerance
     /// (exactly invariant under every increasing transform of the readings).
     #[arg(long, conflicts_with = "rank_tolerance")]
@@ -132,6 +136,7 @@ impl FeatureArgs {
             p.sensor_lag_s = None;
         }
         p.rank_tolerance = self.rank_tolerance;
+        p.clean_air_window_s = self.clean_air_window;
         if self.paper_rank {
             p = p.papers_rank();
         }

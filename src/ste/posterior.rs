@@ -121,6 +121,11 @@ pub struct SteParams {
     /// tie group (see [`clean_air_ties`]). On by default; the rank posterior is then invariant
     /// under gain and offset of the readings, no longer under every increasing transform.
     pub clean_air_ties: bool,
+    /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
+    /// clean-air baseline is taken, so that it follows a drifting baseline (sensor drift, gas
+    /// accumulating in the room); readings above it count by their excess over it. `None`
+    /// takes one baseline over the whole run.
+    pub clean_air_window_s: Option<f64>,
     /// Rank only: the factor `r >= 1` within which the plume model's concentrations are
     /// trusted; the share of estimates within that factor of each estimate is added to its
     /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
@@ -140,6 +145,7 @@ impl SteParams {
             sensor_lag_s: Some([sensor.tau_res_s, sensor.tau_rec_s]),
             detection_floor_ppm: 1.0,
             clean_air_ties: true,
+            clean_air_window_s: None,
             rank_tolerance: RANK_TOLERANCE,
         }
     }
@@ -176,6 +182,15 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "detection floor must be finite and non-negative, got {}",
                 self.detection_floor_ppm
+            )));
+        }
+        if self
+            .clean_air_window_s
+            .is_some_and(|w| !(w.is_finite() && w > 0.0))
+        {
+            return Err(Error::Parameter(format!(
+                "the clean-air window must be a positive number of seconds, got {:?}",
+                self.clean_air_window_s
             )));
         }
         if !(self.rank_tolerance.is_finite() && self.rank_tolerance >= 1.0) {
@@ -229,6 +244,7 @@ pub struct Estimator {
     edf: FeatureTrack<f64>,
     estimated: Vec<FeatureTrack<f32>>,
     positions: Vec<[f64; 2]>,
+    times: Vec<f64>,
     posterior: Vec<f64>,
     lag_state: Vec<f32>,
     last_time: Option<f64>,
@@ -264,6 +280,7 @@ impl Estimator {
             sampler,
             log_prior,
             positions: Vec::new(),
+            times: Vec::new(),
             posterior,
             lag_state,
             last_time: None,
@@ -352,9 +369,13 @@ impl Estimator {
         }
         let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
         self.edf.extend(&values);
+        self.times.extend(samples.iter().map(|s| s.t));
         if self.params.clean_air_ties && self.params.feature == Feature::Rank {
             let mut all = self.edf.values().to_vec();
-            clean_air_ties(&mut all);
+            match self.params.clean_air_window_s {
+                None => clean_air_ties(&mut all),
+                Some(w) => drifting_clean_air_ties(&mut all, &self.times, w),
+            }
             self.measured = FeatureTrack::new(self.params.feature, self.params.features);
             self.measured.extend(&all);
         } else {
@@ -489,6 +510,38 @@ pub fn clean_air_ties(values: &mut [f64]) {
         if *v <= baseline + CLEAN_AIR_NOISES * noise {
             *v = baseline;
         }
+    }
+}
+
+/// [`clean_air_ties`] with a baseline that drifts: reading `i`'s baseline is the 5th
+/// percentile of the readings within `window_s / 2` of it in time. Readings within
+/// `CLEAN_AIR_NOISES` noise levels of their baseline become 0 (one tie group), the others
+/// their excess over it.
+pub fn drifting_clean_air_ties(values: &mut [f64], times: &[f64], window_s: f64) {
+    if values.len() < 3 {
+        return;
+    }
+    let diffs: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    let noise = 1.4826 * crate::stats::median(&diffs) / std::f64::consts::SQRT_2;
+    let original = values.to_vec();
+    let (mut lo, mut hi) = (0, 0);
+    let mut window = Vec::new();
+    for (i, v) in values.iter_mut().enumerate() {
+        while times[lo] < times[i] - 0.5 * window_s {
+            lo += 1;
+        }
+        while hi < original.len() && times[hi] <= times[i] + 0.5 * window_s {
+            hi += 1;
+        }
+        window.clear();
+        window.extend_from_slice(&original[lo..hi]);
+        let k = (0.05 * (window.len() - 1) as f64).round() as usize;
+        let baseline = *window.select_nth_unstable_by(k, f64::total_cmp).1;
+        *v = if *v <= baseline + CLEAN_AIR_NOISES * noise {
+            0.0
+        } else {
+            *v - baseline
+        };
     }
 }
 
