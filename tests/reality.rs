@@ -310,7 +310,7 @@ fn survey_studies_replay_the_flown_survey_and_carry_the_baselines() {
         let flight = config.flight();
         let samples = fly(&meander.reality, &survey.path, source, &flight, s.seed).unwrap();
         let est = replay(
-            meander.sampler.clone(),
+            meander.samplers(),
             config.ste,
             config.robot.radius_m,
             &samples,
@@ -335,4 +335,109 @@ fn survey_studies_replay_the_flown_survey_and_carry_the_baselines() {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     let highest: Vec<f64> = flown.iter().map(|r| r.highest_error_m).collect();
     assert!((summary[0].highest_error_mean_m - mean(&highest)).abs() < 1e-12);
+}
+
+/// Marginalising over banks: with identical banks nothing changes and each bank holds half the
+/// mass; with different banks the candidate posterior is the mixture of the single-bank
+/// posteriors weighted by the bank posterior (the law of total probability, brute force).
+#[test]
+fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
+    use plumenet::plume::PhysicsSolver;
+    use plumenet::ste::posterior::{Estimator, prior_support};
+    use plumenet::ste::replay::replay;
+    let world = crate::ste::world();
+    let slow = world
+        .with_wind_scales(&PhysicsSolver, &[0.5, 1.0], None)
+        .unwrap();
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let survey = lawnmower(&world.layout, &config.robot, 1.5).unwrap();
+    let samples = fly(
+        &world.reality,
+        &survey.path,
+        [4.5, 2.3],
+        &config.flight(),
+        1,
+    )
+    .unwrap();
+    let r = config.robot.radius_m;
+    let single = replay(vec![world.sampler.clone()], config.ste, r, &samples).unwrap();
+    let twice = replay(
+        vec![world.sampler.clone(), world.sampler.clone()],
+        config.ste,
+        r,
+        &samples,
+    )
+    .unwrap();
+    for (a, b) in single.posterior().iter().zip(twice.posterior()) {
+        assert!((a - b).abs() < 1e-12);
+    }
+    assert!(
+        twice
+            .bank_posterior()
+            .iter()
+            .all(|p| (p - 0.5).abs() < 1e-12)
+    );
+    let both = replay(slow.samplers(), config.ste, r, &samples).unwrap();
+    let parts: Vec<Estimator> = slow
+        .samplers()
+        .into_iter()
+        .map(|s| replay(vec![s], config.ste, r, &samples).unwrap())
+        .collect();
+    let w = both.bank_posterior();
+    assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    for (j, p) in both.posterior().iter().enumerate() {
+        let mixture: f64 = parts
+            .iter()
+            .zip(w)
+            .map(|(e, wk)| wk * e.posterior()[j])
+            .sum();
+        assert!(
+            (p - mixture).abs() < 1e-9,
+            "candidate {j}: {p} vs {mixture}"
+        );
+    }
+    // Banks over other candidates, or none at all, are refused.
+    let support = prior_support(&world.layout, world.sampler.candidates(), r, 0.25).unwrap();
+    assert!(Estimator::with_banks(vec![], &support, config.ste).is_err());
+    assert!(
+        world
+            .with_wind_scales(&PhysicsSolver, &[0.0, 1.0], None)
+            .is_err()
+    );
+}
+
+/// The wind speed is identifiable from the readings' ranks: replaying a survey over banks at
+/// half, once and twice the layout's speed puts most of the mass on reality's speed. (The
+/// source sits on a candidate: with a coarse candidate grid a wider plume can make up for a
+/// source between candidates, and the speed is no longer told apart from the position.)
+#[test]
+fn the_wind_speed_posterior_finds_realitys_speed() {
+    use plumenet::plume::PhysicsSolver;
+    use plumenet::ste::replay::replay;
+    let scales = [0.5, 1.0, 2.0];
+    let world = crate::ste::world()
+        .with_wind_scales(&PhysicsSolver, &scales, None)
+        .unwrap();
+    let source = [4.625, 2.375];
+    assert!(world.sampler.candidates().contains(&source));
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    for (k, &scale) in scales.iter().enumerate() {
+        let reality = world
+            .with_mismatch(Mismatch {
+                wind_scale: scale,
+                ..Mismatch::NONE
+            })
+            .unwrap();
+        let samples = fly(&reality.reality, &survey.path, source, &config.flight(), 3).unwrap();
+        let est = replay(
+            world.samplers(),
+            config.ste,
+            config.robot.radius_m,
+            &samples,
+        )
+        .unwrap();
+        let w = est.bank_posterior();
+        assert!(w[k] > 0.6, "reality at x{scale}: bank posterior {w:?}");
+    }
 }

@@ -650,7 +650,7 @@ fn replay_of_a_synthetic_log_recovers_its_source() {
         let samples = read_log(&path).unwrap();
         let mut params = SteParams::for_feature(Feature::Rank);
         params.sensor_lag_s = None;
-        let est = replay(Arc::clone(&world().sampler), params, 0.07, &samples).unwrap();
+        let est = replay(world().samplers(), params, 0.07, &samples).unwrap();
         let [x, y] = est.estimate();
         assert!(
             (x - source[0]).hypot(y - source[1]) <= 0.25 * 2f64.sqrt() + 1e-9,

@@ -1,7 +1,6 @@
 //! The STE commands: `localize` (one simulated run) and `replay` (a logged run).
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -46,6 +45,10 @@ pub struct PlumeArgs {
     /// Do not read or write the bank cache.
     #[arg(long)]
     no_cache: bool,
+    /// Model wind speeds to marginalise over, as factors of the layout's (one bank each, equally
+    /// likely a priori), e.g. 0.5,1,2; the default 1 trusts the layout's speed.
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0])]
+    wind_scales: Vec<f64>,
 }
 
 impl PlumeArgs {
@@ -69,6 +72,11 @@ impl PlumeArgs {
         };
         let cache = (!self.no_cache).then_some(self.cache_dir.as_path());
         let (world, hit) = World::build(layout, model.as_ref(), self.spacing, cache)?;
+        let world = if self.wind_scales == [1.0] {
+            world
+        } else {
+            world.with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
+        };
         println!(
             "plume model {}: {} candidates{}",
             model.name(),
@@ -428,7 +436,13 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let (world, model_name) = a.plume.world(layout)?;
     let feature = Feature::from(a.feature);
     let params = a.features.params(feature);
-    let est = replay(Arc::clone(&world.sampler), params, a.robot_radius, &samples)?;
+    let est = replay(world.samplers(), params, a.robot_radius, &samples)?;
+    let wind_scales: Vec<[f64; 2]> = world
+        .banks
+        .iter()
+        .zip(est.bank_posterior())
+        .map(|((scale, _), &p)| [*scale, p])
+        .collect();
     let estimate = est.estimate();
     let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
     let baselines = Baselines::new(&world.layout, &samples, source)?;
@@ -476,7 +490,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         let mut report = json!({
             "estimate": estimate, "entropy": est.entropy(), "samples": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
-            "baselines": baselines, "posterior": posterior,
+            "baselines": baselines, "wind_scales": wind_scales, "posterior": posterior,
         });
         if let (Some(s), Some(e)) = (source, error_m) {
             report["source"] = json!(s);

@@ -210,7 +210,7 @@ fn run_one(
             let clock = std::time::Instant::now();
             let samples = fly(&world.reality, path, source, &config.flight(), seed)?;
             let est = replay(
-                world.sampler.clone(),
+                world.samplers(),
                 config.ste,
                 config.robot.radius_m,
                 &samples,

@@ -238,7 +238,11 @@ pub fn prior_support(
 #[derive(Debug, Clone)]
 pub struct Estimator {
     params: SteParams,
-    sampler: Arc<FieldSampler>,
+    /// The banks: the model's at the layout's wind speed first, then at the other nuisance
+    /// values (see [`Estimator::with_banks`]).
+    samplers: Vec<Arc<FieldSampler>>,
+    /// Posterior of each bank (its nuisance value), summed over candidates.
+    bank_posterior: Vec<f64>,
     log_prior: Vec<f64>,
     measured: FeatureTrack<f64>,
     edf: FeatureTrack<f64>,
@@ -256,13 +260,41 @@ impl Estimator {
     /// # Errors
     /// [`Error::Parameter`] for bad settings or a support of the wrong length or empty.
     pub fn new(sampler: Arc<FieldSampler>, support: &[bool], params: SteParams) -> Result<Self> {
+        Self::with_banks(vec![sampler], support, params)
+    }
+
+    /// A fresh estimator over several banks of the same candidates: the plume model under
+    /// different values of a nuisance parameter (the wind speed), each equally likely a priori.
+    /// The posterior is over (bank, candidate) jointly; [`Estimator::posterior`] is its
+    /// marginal over candidates and [`Estimator::bank_posterior`] over banks.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for bad settings, no bank, banks over different candidates, or a
+    /// support of the wrong length or empty.
+    pub fn with_banks(
+        samplers: Vec<Arc<FieldSampler>>,
+        support: &[bool],
+        params: SteParams,
+    ) -> Result<Self> {
         params.check()?;
-        if support.len() != sampler.len() || !support.iter().any(|&s| s) {
+        let Some(first) = samplers.first() else {
+            return Err(Error::Parameter("no plume bank".into()));
+        };
+        if samplers
+            .iter()
+            .any(|s| s.candidates() != first.candidates())
+        {
+            return Err(Error::Parameter(
+                "the plume banks cover different candidates".into(),
+            ));
+        }
+        let n = first.len();
+        if support.len() != n || !support.iter().any(|&s| s) {
             return Err(Error::Parameter(format!(
                 "prior support has {} entries ({} allowed) for {} candidates",
                 support.len(),
                 support.iter().filter(|&&s| s).count(),
-                sampler.len()
+                n
             )));
         }
         let log_prior: Vec<f64> = support
@@ -270,19 +302,20 @@ impl Estimator {
             .map(|&s| if s { 0.0 } else { f64::NEG_INFINITY })
             .collect();
         let posterior = normalise(&log_prior);
-        let lag_state = vec![0.0; log_prior.len()];
+        let banks = samplers.len();
         let track = FeatureTrack::new(params.feature, params.features);
         Ok(Self {
-            estimated: vec![track; sampler.len()],
+            estimated: vec![track; banks * n],
             measured: FeatureTrack::new(params.feature, params.features),
             edf: FeatureTrack::new(Feature::Rank, params.features),
             params,
-            sampler,
+            bank_posterior: vec![1.0 / banks as f64; banks],
+            samplers,
             log_prior,
             positions: Vec::new(),
             times: Vec::new(),
             posterior,
-            lag_state,
+            lag_state: vec![0.0; banks * n],
             last_time: None,
         })
     }
@@ -292,14 +325,19 @@ impl Estimator {
         &self.params
     }
 
-    /// The bank sampler.
+    /// The bank the planner predicts with: the most probable one.
     pub fn sampler(&self) -> &FieldSampler {
-        &self.sampler
+        &self.samplers[argmax(&self.bank_posterior)]
+    }
+
+    /// The posterior of each bank (summed over candidates), in the order given.
+    pub fn bank_posterior(&self) -> &[f64] {
+        &self.bank_posterior
     }
 
     /// Candidate positions (m).
     pub fn candidates(&self) -> &[[f64; 2]] {
-        self.sampler.candidates()
+        self.samplers[0].candidates()
     }
 
     /// Number of readings so far.
@@ -339,7 +377,7 @@ impl Estimator {
     /// [`Error::Parameter`] for a non-finite reading, time or position, or a position outside
     /// the arena; nothing is changed then.
     pub fn update(&mut self, samples: &[Sample]) -> Result<()> {
-        let layout = self.sampler.layout();
+        let layout = self.samplers[0].layout();
         for (k, s) in samples.iter().enumerate() {
             let finite = [s.t, s.x, s.y, s.value].iter().all(|v| v.is_finite());
             let inside =
@@ -354,11 +392,14 @@ impl Estimator {
         if samples.is_empty() {
             return Ok(());
         }
-        let n_cand = self.sampler.len();
+        let positions = self.samplers[0].len();
+        let n_cand = self.estimated.len();
         let scale = self.params.ppm_per_unit as f32;
         let mut gathered = vec![0.0f32; samples.len() * n_cand];
         for (s, row) in samples.iter().zip(gathered.chunks_mut(n_cand)) {
-            self.sampler.gather(s.x, s.y, scale, row);
+            for (sampler, part) in self.samplers.iter().zip(row.chunks_mut(positions)) {
+                sampler.gather(s.x, s.y, scale, part);
+            }
         }
         if let Some(taus) = self.params.sensor_lag_s {
             self.apply_lag(samples, &mut gathered, taus);
@@ -417,13 +458,15 @@ impl Estimator {
                 factor * sum
             })
             .collect();
-        let log_post: Vec<f64> = self
-            .log_prior
-            .iter()
-            .zip(&log_lik)
-            .map(|(a, b)| a + b)
+        let log_post: Vec<f64> = log_lik
+            .chunks(positions)
+            .flat_map(|bank| self.log_prior.iter().zip(bank).map(|(a, b)| a + b))
             .collect();
-        self.posterior = normalise(&log_post);
+        let joint = normalise(&log_post);
+        self.posterior = (0..positions)
+            .map(|j| joint.iter().skip(j).step_by(positions).sum())
+            .collect();
+        self.bank_posterior = joint.chunks(positions).map(|b| b.iter().sum()).collect();
         Ok(())
     }
 
@@ -431,7 +474,7 @@ impl Estimator {
     /// (rise with `tau_res`, fall with `tau_rec`), continuing from the previous update. The
     /// first sample of a run starts the filter at its own value (the sensor in equilibrium).
     fn apply_lag(&mut self, samples: &[Sample], gathered: &mut [f32], [res, rec]: [f64; 2]) {
-        let n = self.sampler.len();
+        let n = self.estimated.len();
         for (s, row) in samples.iter().zip(gathered.chunks_mut(n)) {
             match self.last_time {
                 None => self.lag_state.copy_from_slice(row),

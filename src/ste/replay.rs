@@ -72,24 +72,28 @@ pub fn read_log(path: &Path) -> Result<Vec<Sample>> {
     Ok(samples)
 }
 
-/// Runs the estimator over all readings at once, with the uniform prior of a simulated run
-/// (obstacles inflated by `robot_radius_m`, the 0.25 m boundary band excluded).
+/// Runs the estimator over all readings at once, over one bank or several (see
+/// [`Estimator::with_banks`]), with the uniform prior of a simulated run (obstacles inflated by
+/// `robot_radius_m`, the 0.25 m boundary band excluded).
 ///
 /// # Errors
-/// [`Error::Parameter`] for bad settings or a sample outside the arena.
+/// [`Error::Parameter`] for bad settings, no bank, or a sample outside the arena.
 pub fn replay(
-    sampler: Arc<FieldSampler>,
+    samplers: Vec<Arc<FieldSampler>>,
     params: SteParams,
     robot_radius_m: f64,
     samples: &[Sample],
 ) -> Result<Estimator> {
+    let Some(first) = samplers.first() else {
+        return Err(Error::Parameter("no plume bank".into()));
+    };
     let support = prior_support(
-        sampler.layout(),
-        sampler.candidates(),
+        first.layout(),
+        first.candidates(),
         robot_radius_m,
         PRIOR_BAND_M,
     )?;
-    let mut est = Estimator::new(sampler, &support, params)?;
+    let mut est = Estimator::with_banks(samplers, &support, params)?;
     est.update(samples)?;
     Ok(est)
 }

@@ -39,7 +39,7 @@ pub const PRIOR_BAND_M: f64 = 0.25;
 /// time constants, so the sensor has settled.
 pub const SENSOR_SETTLE_S: f64 = 20.0;
 
-/// The world a run happens in: the layout, its wind, the plume bank of the model, and the
+/// The world a run happens in: the layout, its wind, the plume banks of the model, and the
 /// reality the robot senses.
 #[derive(Debug, Clone)]
 pub struct World {
@@ -47,8 +47,11 @@ pub struct World {
     pub layout: Layout,
     /// Its steady wind, as the plume model assumes it.
     pub wind: WindField,
-    /// The plume model's bank, ready for sampling.
+    /// The plume model's bank at the layout's wind speed, ready for sampling.
     pub sampler: Arc<FieldSampler>,
+    /// The model wind speeds the estimator marginalises over, as factors of the layout's, with
+    /// their banks (`[(1, sampler)]` unless [`World::with_wind_scales`] was used).
+    pub banks: Vec<(f64, Arc<FieldSampler>)>,
     /// What the robot senses (the model on average unless a [`Mismatch`] is set).
     pub reality: Arc<Reality>,
 }
@@ -73,17 +76,14 @@ impl World {
                 "the layout has no free candidate cell at spacing {spacing_m} m"
             )));
         }
-        let (bank, hit) = match cache {
-            Some(dir) => cached_bank(model, &layout, &candidates, dir)?,
-            None => (model.bank(&layout, &candidates)?, false),
-        };
-        let sampler = Arc::new(FieldSampler::new(&layout, &bank)?);
+        let (sampler, hit) = sampler_of(model, &layout, &candidates, cache)?;
         let wind = WindField::solve(&layout)?;
         let reality = Arc::new(Reality::new(&layout, &wind, Mismatch::NONE)?);
         Ok((
             Self {
                 layout,
                 wind,
+                banks: vec![(1.0, Arc::clone(&sampler))],
                 sampler,
                 reality,
             },
@@ -91,7 +91,49 @@ impl World {
         ))
     }
 
-    /// The same world (layout and bank) with reality departing from the model by `mismatch`.
+    /// The same world with the estimator marginalising over the model's wind speed: one bank
+    /// of `model` for each factor in `scales` (the layout's speed times the factor; 1 reuses
+    /// the layout's own bank), each equally likely a priori.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for no factor, or a factor that is not positive and finite; the
+    /// model's errors (a speed outside a PlumeNet model's trained range among them).
+    pub fn with_wind_scales(
+        &self,
+        model: &dyn PlumeModel,
+        scales: &[f64],
+        cache: Option<&Path>,
+    ) -> Result<Self> {
+        if scales.is_empty() || scales.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(Error::Parameter(format!(
+                "model wind scales must be positive numbers, got {scales:?}"
+            )));
+        }
+        let candidates = self.sampler.candidates();
+        let banks = scales
+            .iter()
+            .map(|&scale| {
+                if scale == 1.0 {
+                    return Ok((scale, Arc::clone(&self.sampler)));
+                }
+                let mut spec = self.layout.spec().clone();
+                spec.wind.speed_mps *= scale;
+                let layout = spec.check()?;
+                Ok((scale, sampler_of(model, &layout, candidates, cache)?.0))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            banks,
+            ..self.clone()
+        })
+    }
+
+    /// The banks' samplers, in the order of [`World::banks`].
+    pub fn samplers(&self) -> Vec<Arc<FieldSampler>> {
+        self.banks.iter().map(|(_, s)| Arc::clone(s)).collect()
+    }
+
+    /// The same world (layout and banks) with reality departing from the model by `mismatch`.
     ///
     /// # Errors
     /// [`Error::Parameter`] for bad knobs, and the wind solver's errors.
@@ -101,6 +143,21 @@ impl World {
             ..self.clone()
         })
     }
+}
+
+/// The model's bank of `candidates` in `layout`, through the cache when given, ready for
+/// sampling; also whether it came from the cache.
+fn sampler_of(
+    model: &dyn PlumeModel,
+    layout: &Layout,
+    candidates: &[[f64; 2]],
+    cache: Option<&Path>,
+) -> Result<(Arc<FieldSampler>, bool)> {
+    let (bank, hit) = match cache {
+        Some(dir) => cached_bank(model, layout, candidates, dir)?,
+        None => (model.bank(layout, candidates)?, false),
+    };
+    Ok((Arc::new(FieldSampler::new(layout, &bank)?), hit))
 }
 
 /// Settings of one run.
@@ -203,6 +260,9 @@ pub struct Episode {
     pub baselines: Baselines,
     /// How reality departed from the plume model.
     pub reality: Mismatch,
+    /// The model wind speeds marginalised over (factors of the layout's) and their posterior
+    /// at the end.
+    pub wind_scales: Vec<[f64; 2]>,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
 }
@@ -319,7 +379,7 @@ pub fn run_episode(
         config.robot.radius_m,
         PRIOR_BAND_M,
     )?;
-    let mut est = Estimator::new(world.sampler.clone(), &support, config.ste)?;
+    let mut est = Estimator::with_banks(world.samplers(), &support, config.ste)?;
     let mut planner = Planner::new(config.planner, derive_seed(seed, 3));
     let mut history = Vec::new();
     let mut samples = Vec::new();
@@ -364,6 +424,12 @@ pub fn run_episode(
         posterior: est.posterior().to_vec(),
         baselines,
         reality: world.reality.mismatch(),
+        wind_scales: world
+            .banks
+            .iter()
+            .zip(est.bank_posterior())
+            .map(|((scale, _), &p)| [*scale, p])
+            .collect(),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })
 }
