@@ -914,3 +914,92 @@ fn drifting_clean_air_ties_follow_a_slow_drift() {
     let err = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap_err();
     assert!(err.to_string().contains("clean-air window"), "{err}");
 }
+
+/// A live session: readings in any batches give the posterior `replay` gives for them, bad
+/// readings are refused whole with the session unchanged, and a reset starts again exactly.
+#[test]
+fn a_session_takes_batches_refuses_bad_readings_and_resets() {
+    use plumenet::ste::replay::replay;
+    use plumenet::ste::session::{Session, SessionConfig};
+    let ep = run_episode(
+        world(),
+        &EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII),
+        [4.5, 2.5],
+        [15.0, 1.0],
+        0,
+        false,
+    )
+    .unwrap();
+    let c = ep.config;
+    let config = SessionConfig {
+        ste: c.ste,
+        planner: c.planner,
+        termination: c.termination,
+        robot: c.robot,
+        planner_seed: 9,
+    };
+    let mut session = Session::new(world(), config).unwrap();
+    let err = session.iterate(None).unwrap_err().to_string();
+    assert!(err.contains("no position to plan from"), "{err}");
+    let first = session.iterate(Some([15.0, 1.0])).unwrap();
+    assert_eq!((first.iteration, first.readings), (0, 0));
+    assert!(first.goal.is_some() && first.path.len() >= 2);
+    // Uneven batches, an iteration after each.
+    let mut sent = 0;
+    for (k, size) in [1usize, 7, 150, 400].iter().cycle().enumerate() {
+        if sent == ep.samples.len() {
+            break;
+        }
+        let end = (sent + size).min(ep.samples.len());
+        assert_eq!(session.add_readings(&ep.samples[sent..end]).unwrap(), end);
+        sent = end;
+        let it = session.iterate(None).unwrap();
+        assert_eq!(it.iteration, k + 1);
+        let mass: f64 = it
+            .credible_region
+            .iter()
+            .map(|p| {
+                let j = session.estimator().candidates().iter().position(|c| c == p);
+                session.estimator().posterior()[j.unwrap()]
+            })
+            .sum();
+        assert!(mass >= 0.9 - 1e-9);
+        if it.done {
+            assert!(it.goal.is_none() && it.path.is_empty());
+        }
+    }
+    let all = replay(world().samplers(), c.ste, c.robot.radius_m, &ep.samples).unwrap();
+    for (a, b) in session.estimator().posterior().iter().zip(all.posterior()) {
+        assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+    }
+    // Bad readings: the whole batch is refused and nothing changes.
+    let last = *ep.samples.last().unwrap();
+    let good = Sample {
+        t: last.t + 0.1,
+        ..last
+    };
+    for (bad, needle) in [
+        (
+            Sample {
+                value: f64::NAN,
+                ..good
+            },
+            "not finite",
+        ),
+        (Sample { x: -1.0, ..good }, "outside the arena"),
+        (
+            Sample {
+                t: last.t - 1.0,
+                ..good
+            },
+            "back in time",
+        ),
+    ] {
+        let err = session.add_readings(&[good, bad]).unwrap_err().to_string();
+        assert!(err.contains(needle) && err.contains("reading 1"), "{err}");
+        assert_eq!(session.readings().len(), ep.samples.len());
+    }
+    session.reset().unwrap();
+    assert!(session.readings().is_empty());
+    assert_eq!(session.iterate(Some([15.0, 1.0])).unwrap(), first);
+}

@@ -19,6 +19,7 @@ pub mod robot;
 pub mod run;
 pub mod sampler;
 pub mod sensor;
+pub mod session;
 pub mod survey;
 
 pub use baseline::Baselines;

@@ -25,12 +25,13 @@ use crate::physics::wind::WindField;
 use crate::plume::{PlumeModel, cached_bank};
 use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
-use crate::ste::planner::{Planner, PlannerKind};
-use crate::ste::posterior::{Estimator, Sample, SteParams, Termination, prior_support};
+use crate::ste::planner::PlannerKind;
+use crate::ste::posterior::{Sample, SteParams, Termination};
 use crate::ste::reality::{Field, Flight, Mismatch, Reality};
 use crate::ste::robot::{Occupancy, RobotParams, path_length};
 use crate::ste::sampler::FieldSampler;
 use crate::ste::sensor::SensorPreset;
+use crate::ste::session::{Session, SessionConfig};
 
 /// Width of the boundary band the prior excludes (m): one candidate spacing.
 pub const PRIOR_BAND_M: f64 = 0.25;
@@ -373,39 +374,41 @@ pub fn run_episode(
         });
     }
     let mut field = Field::start(&world.reality, &config.flight(), source, start, seed)?;
-    let support = prior_support(
-        layout,
-        world.sampler.candidates(),
-        config.robot.radius_m,
-        PRIOR_BAND_M,
+    let mut session = Session::new(
+        world,
+        SessionConfig {
+            ste: config.ste,
+            planner: config.planner,
+            termination: config.termination,
+            robot: config.robot,
+            planner_seed: derive_seed(seed, 3),
+        },
     )?;
-    let mut est = Estimator::with_banks(world.samplers(), &support, config.ste)?;
-    let mut planner = Planner::new(config.planner, derive_seed(seed, 3));
     let mut history = Vec::new();
-    let mut samples = Vec::new();
-    let mut converged = false;
-    let mut recent = Vec::new();
-    for iteration in 1..=config.termination.max_iterations {
-        let plan = planner.next(&est, &occupancy, field.position())?;
-        let fresh = field.drive(&plan.path, &config.robot);
-        est.update(&fresh)?;
-        samples.extend(fresh);
+    let mut next = session.iterate(Some(start))?;
+    // Every drive brings readings (goals lie away from the robot), so each pass is one
+    // iteration; the bound only guards against a planner that would stand still.
+    for _ in 0..config.termination.max_iterations {
+        let Some(goal) = next.goal else { break };
+        let fresh = field.drive(&next.path, &config.robot);
+        session.add_readings(&fresh)?;
+        let path_m = path_length(&next.path);
+        next = session.iterate(Some(field.position()))?;
+        let est = session.estimator();
         history.push(IterationRecord {
-            iteration,
-            goal: plan.goal,
-            path_m: path_length(&plan.path),
-            samples: samples.len(),
-            entropy: est.entropy(),
-            estimate: est.estimate(),
+            iteration: next.iteration,
+            goal,
+            path_m,
+            samples: next.readings,
+            entropy: next.entropy,
+            estimate: next.estimate,
             posterior: keep_posteriors.then(|| est.posterior().to_vec()),
             trajectory_len: field.trajectory().len(),
         });
-        if config.termination.converged(&est, &recent) {
-            converged = true;
-            break;
-        }
-        recent.push((config.termination.concentrated(&est), est.estimate()));
     }
+    let converged = next.converged;
+    let est = session.estimator();
+    let samples = session.readings().to_vec();
     let estimate = est.estimate();
     let baselines = Baselines::new(layout, &samples, Some(source))?;
     Ok(Episode {

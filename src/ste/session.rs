@@ -1,0 +1,237 @@
+//! A live STE session: what a robot talks to. No I/O here; `localize`'s simulated robot and
+//! the `serve` protocol both drive this same type, so they cannot drift apart.
+//!
+//! The robot sends its readings `(t, x, y, value)` in time order, in batches of any size
+//! ([`Session::add_readings`]), and asks for an iteration ([`Session::iterate`]): the posterior
+//! is brought up to date with the readings that arrived since the last iteration, the
+//! termination rule is checked, and unless the session is done the planner picks the next goal
+//! and its path from the robot's position. An iteration without new readings only plans (the
+//! first one plans from the prior).
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::layout::Layout;
+use crate::ste::planner::{Planner, PlannerKind};
+use crate::ste::posterior::{Estimator, Sample, SteParams, Termination, prior_support};
+use crate::ste::robot::{Occupancy, RobotParams};
+use crate::ste::run::{PRIOR_BAND_M, World};
+use crate::ste::sampler::FieldSampler;
+
+/// Mass of the credible region an iteration reports.
+pub const CREDIBLE_MASS: f64 = 0.9;
+
+/// The settings of a session.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SessionConfig {
+    /// Feature, sigmas and thresholds.
+    pub ste: SteParams,
+    /// The planner.
+    pub planner: PlannerKind,
+    /// The stopping rule.
+    pub termination: Termination,
+    /// The robot (its size decides where it may drive and the prior's inflation).
+    pub robot: RobotParams,
+    /// Seed of the planner's random draws.
+    pub planner_seed: u64,
+}
+
+/// What an iteration reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Iteration {
+    /// Posterior updates so far (iterations with new readings).
+    pub iteration: usize,
+    /// Readings accepted so far.
+    pub readings: usize,
+    /// The MAP estimate (m).
+    pub estimate: [f64; 2],
+    /// Posterior entropy (nats).
+    pub entropy: f64,
+    /// The candidates of the smallest set holding 90% of the posterior, most probable first.
+    pub credible_region: Vec<[f64; 2]>,
+    /// Whether the termination rule holds.
+    pub converged: bool,
+    /// Whether the session is over: converged, or at the iteration limit.
+    pub done: bool,
+    /// The next goal (none once done).
+    pub goal: Option<[f64; 2]>,
+    /// The planned path from the robot's position to the goal (empty once done).
+    pub path: Vec<[f64; 2]>,
+}
+
+/// A live session over one world's banks.
+#[derive(Debug, Clone)]
+pub struct Session {
+    config: SessionConfig,
+    samplers: Vec<Arc<FieldSampler>>,
+    support: Vec<bool>,
+    occupancy: Occupancy,
+    est: Estimator,
+    planner: Planner,
+    readings: Vec<Sample>,
+    pending: usize,
+    iterations: usize,
+    converged: bool,
+    recent: Vec<(bool, [f64; 2])>,
+}
+
+impl Session {
+    /// A fresh session (uniform prior, no readings) in `world`.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for bad robot or STE settings, or a layout with no room for the
+    /// robot or no candidate in the prior.
+    pub fn new(world: &World, config: SessionConfig) -> Result<Self> {
+        config.robot.check()?;
+        let layout = &world.layout;
+        let occupancy = Occupancy::new(layout, config.robot.radius_m + config.robot.clearance_m)?;
+        let support = prior_support(
+            layout,
+            world.sampler.candidates(),
+            config.robot.radius_m,
+            PRIOR_BAND_M,
+        )?;
+        let samplers = world.samplers();
+        let est = Estimator::with_banks(samplers.clone(), &support, config.ste)?;
+        Ok(Self {
+            planner: Planner::new(config.planner, config.planner_seed),
+            config,
+            samplers,
+            support,
+            occupancy,
+            est,
+            readings: Vec::new(),
+            pending: 0,
+            iterations: 0,
+            converged: false,
+            recent: Vec::new(),
+        })
+    }
+
+    /// The layout.
+    pub fn layout(&self) -> &Layout {
+        self.samplers[0].layout()
+    }
+
+    /// The estimator (posterior, candidates, readings' features) as of the last iteration.
+    pub fn estimator(&self) -> &Estimator {
+        &self.est
+    }
+
+    /// Every reading accepted so far, in time order.
+    pub fn readings(&self) -> &[Sample] {
+        &self.readings
+    }
+
+    /// Where the robot may drive.
+    pub fn occupancy(&self) -> &Occupancy {
+        &self.occupancy
+    }
+
+    /// Accepts a batch of readings and returns the number accepted so far. The batch is
+    /// checked whole first: on error nothing is added.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] naming the first reading that is not finite, lies outside the arena
+    /// or goes back in time.
+    pub fn add_readings(&mut self, batch: &[Sample]) -> Result<usize> {
+        let layout = self.layout();
+        let mut last_t = self.readings.last().map_or(f64::NEG_INFINITY, |s| s.t);
+        for (k, s) in batch.iter().enumerate() {
+            let bad = |why: &str| {
+                Err(Error::Parameter(format!(
+                    "reading {k} of the batch (t {}, x {}, y {}, value {}) {why}",
+                    s.t, s.x, s.y, s.value
+                )))
+            };
+            if ![s.t, s.x, s.y, s.value].iter().all(|v| v.is_finite()) {
+                return bad("is not finite");
+            }
+            if !(0.0..=layout.width()).contains(&s.x) || !(0.0..=layout.height()).contains(&s.y) {
+                return bad("lies outside the arena");
+            }
+            if s.t < last_t {
+                return bad("goes back in time");
+            }
+            last_t = s.t;
+        }
+        self.readings.extend_from_slice(batch);
+        self.pending += batch.len();
+        Ok(self.readings.len())
+    }
+
+    /// Runs an iteration: updates the posterior with the readings since the last one (when
+    /// there are any: that counts as an iteration and checks the termination rule), then,
+    /// unless the session is done, plans the next goal from `position` (by default the last
+    /// reading's position).
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] when there is no position to plan from (no reading and none
+    /// given), or when no goal is reachable from it.
+    pub fn iterate(&mut self, position: Option<[f64; 2]>) -> Result<Iteration> {
+        if self.pending > 0 {
+            let fresh = &self.readings[self.readings.len() - self.pending..];
+            self.est.update(fresh)?;
+            self.pending = 0;
+            self.iterations += 1;
+            self.converged = self.config.termination.converged(&self.est, &self.recent);
+            if !self.converged {
+                self.recent.push((
+                    self.config.termination.concentrated(&self.est),
+                    self.est.estimate(),
+                ));
+            }
+        }
+        let done = self.converged || self.iterations >= self.config.termination.max_iterations;
+        let plan = if done {
+            None
+        } else {
+            let from = position
+                .or_else(|| self.readings.last().map(|s| [s.x, s.y]))
+                .ok_or_else(|| {
+                    Error::Parameter(
+                        "no position to plan from: send a reading or the robot's position".into(),
+                    )
+                })?;
+            Some(self.planner.next(&self.est, &self.occupancy, from)?)
+        };
+        let candidates = self.est.candidates();
+        Ok(Iteration {
+            iteration: self.iterations,
+            readings: self.readings.len(),
+            estimate: self.est.estimate(),
+            entropy: self.est.entropy(),
+            credible_region: self
+                .est
+                .credible_set(CREDIBLE_MASS)
+                .into_iter()
+                .map(|k| candidates[k])
+                .collect(),
+            converged: self.converged,
+            done,
+            goal: plan.as_ref().map(|p| p.goal),
+            path: plan.map_or_else(Vec::new, |p| p.path),
+        })
+    }
+
+    /// Forgets every reading and starts again from the prior (the planner's random stream
+    /// starts again too).
+    ///
+    /// # Errors
+    /// None in practice: the settings were checked when the session was made.
+    pub fn reset(&mut self) -> Result<()> {
+        *self = Self {
+            est: Estimator::with_banks(self.samplers.clone(), &self.support, self.config.ste)?,
+            planner: Planner::new(self.config.planner, self.config.planner_seed),
+            readings: Vec::new(),
+            pending: 0,
+            iterations: 0,
+            converged: false,
+            recent: Vec::new(),
+            ..self.clone()
+        };
+        Ok(())
+    }
+}
