@@ -57,6 +57,8 @@ enum Command {
     Replay(ste::ReplayArgs),
     /// Fly a raster survey through the simulated reality and write its readings log.
     Survey(ste::SurveyArgs),
+    /// Serve a live STE session to a robot: JSON lines on stdin/stdout or TCP.
+    Serve(ste::ServeArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(ste::ExperimentArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
@@ -316,6 +318,7 @@ impl Cli {
             Command::Localize(a) => ste::localize(a),
             Command::Replay(a) => ste::replay_log(a),
             Command::Survey(a) => ste::survey(a),
+            Command::Serve(a) => ste::serve(a),
             Command::Experiment(a) => ste::experiment(a),
             Command::BenchSte(a) => ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),

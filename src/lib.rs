@@ -21,7 +21,7 @@
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
 //! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (PNG
-//! rendering), [`stats`] (medians and spreads), [`io`] (atomic files), [`bench`](mod@bench)
+//! rendering), [`service`] (serving a live session over lines: stdin/stdout, TCP, state file), [`stats`] (medians and spreads), [`io`] (atomic files), [`bench`](mod@bench)
 //! (timings).
 
 #![warn(missing_docs)]
@@ -35,6 +35,7 @@ pub mod layout;
 pub mod physics;
 pub mod plume;
 pub mod report;
+pub mod service;
 pub mod stats;
 pub mod ste;
 pub mod surrogate;

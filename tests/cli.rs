@@ -644,3 +644,101 @@ fn bad_ste_input_fails_cleanly() {
     ]);
     assert_clean_failure(&out, "cannot be used with");
 }
+
+/// `serve` over TCP with a state file: killed with SIGKILL in the middle of a stream and
+/// restarted, it ends with the posterior of an uninterrupted session.
+#[test]
+fn serve_survives_sigkill_with_its_state_file() {
+    use std::io::{BufRead, BufReader, Write};
+    let tmp = tempfile::tempdir().unwrap();
+    let state = tmp.path().join("state.jsonl");
+    let start = || {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_plumenet"))
+            .args(["serve", "--solver", "--listen", "127.0.0.1:0", "--state"])
+            .arg(&state)
+            .current_dir(repo_path(""))
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let at = line
+            .trim()
+            .strip_prefix("listening on ")
+            .unwrap()
+            .to_string();
+        (child, at)
+    };
+    let talk = |at: &str, lines: &[String]| -> Vec<serde_json::Value> {
+        let stream = std::net::TcpStream::connect(at).unwrap();
+        let mut reader = BufReader::new(stream.try_clone().unwrap());
+        let mut writer = stream;
+        lines
+            .iter()
+            .map(|l| {
+                writeln!(writer, "{l}").unwrap();
+                let mut reply = String::new();
+                reader.read_line(&mut reply).unwrap();
+                serde_json::from_str(&reply).unwrap()
+            })
+            .collect()
+    };
+    let batch = |id: usize, k: usize| {
+        let readings: Vec<serde_json::Value> = (0..50)
+            .map(|i| {
+                let t = 0.1 * (k * 50 + i) as f64;
+                let x = 16.0 - 0.02 * (k * 50 + i) as f64;
+                serde_json::json!({"t": t, "x": x, "y": 2.0, "value": 1.0 + 0.1 * (-(x - 5.0f64).powi(2)).exp()})
+            })
+            .collect();
+        serde_json::json!({"id": id, "op": "readings", "readings": readings}).to_string()
+    };
+    let belief = r#"{"id":99,"op":"belief"}"#.to_string();
+    let update = r#"{"id":98,"op":"iterate"}"#.to_string();
+    // Uninterrupted.
+    std::fs::write(&state, "").unwrap();
+    let (mut child, at) = start();
+    let mut lines: Vec<String> = (0..10).map(|k| batch(k, k)).collect();
+    lines.extend([update.clone(), belief.clone()]);
+    let whole = talk(&at, &lines);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // Killed after the fifth batch, restarted on the same file, the rest sent again from the
+    // last acknowledged batch.
+    std::fs::write(&state, "").unwrap();
+    let (mut child, at) = start();
+    let first = talk(&at, &lines[..5]);
+    assert_eq!(first[4]["accepted"], 250);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let (mut child, at) = start();
+    let rest = talk(&at, &lines[5..]);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(rest[4]["accepted"], 500);
+    // The same posterior up to round-off (one update of 500 readings against updates of 250
+    // and 250).
+    let p = |r: &serde_json::Value| -> Vec<f64> {
+        r["posterior"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["p"].as_f64().unwrap())
+            .collect()
+    };
+    let (a, b) = (p(rest.last().unwrap()), p(whole.last().unwrap()));
+    assert_eq!(a.len(), b.len());
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-12, "posteriors differ by up to {worst}");
+    assert_eq!(
+        rest.last().unwrap()["estimate"],
+        whole.last().unwrap()["estimate"]
+    );
+}

@@ -9,6 +9,7 @@ mod filament;
 mod frame;
 mod layout;
 mod reality;
+mod service;
 mod ste;
 mod surrogate;
 mod transport;

@@ -55,11 +55,22 @@ impl PlumeArgs {
     /// Loads the layout's world (wind + bank) for the chosen model; also returns the model's
     /// name for reports.
     pub fn world(&self, layout: Layout) -> Result<(World, String)> {
-        self.world_of(layout, self.solver)
+        let (world, name, note) = self.world_of(layout, self.solver)?;
+        println!("{note}");
+        Ok((world, name))
     }
 
-    /// [`PlumeArgs::world`] with the physics solver (`solver`) or the chosen PlumeNet model.
-    fn world_of(&self, layout: Layout, solver: bool) -> Result<(World, String)> {
+    /// [`PlumeArgs::world`] with its note on standard error (standard output being a
+    /// protocol's).
+    pub fn world_quietly(&self, layout: Layout) -> Result<(World, String)> {
+        let (world, name, note) = self.world_of(layout, self.solver)?;
+        eprintln!("{note}");
+        Ok((world, name))
+    }
+
+    /// The world with the physics solver (`solver`) or the chosen PlumeNet model, its name, and
+    /// a note on the bank for the user.
+    fn world_of(&self, layout: Layout, solver: bool) -> Result<(World, String, String)> {
         let model: Box<dyn PlumeModel> = if solver {
             Box::new(PhysicsSolver)
         } else {
@@ -77,13 +88,13 @@ impl PlumeArgs {
         } else {
             world.with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
         };
-        println!(
+        let note = format!(
             "plume model {}: {} candidates{}",
             model.name(),
             world.sampler.len(),
             if hit { " (bank from cache)" } else { "" }
         );
-        Ok((world, model.name()))
+        Ok((world, model.name(), note))
     }
 
     /// The candidate spacing (m).
@@ -286,6 +297,14 @@ impl RealityArgs {
     }
 }
 
+/// A layout's name in reports: its file stem.
+fn layout_name(path: &std::path::Path) -> String {
+    path.file_stem().map_or_else(
+        || path.display().to_string(),
+        |s| s.to_string_lossy().into(),
+    )
+}
+
 /// Prints the baselines beside an estimate.
 fn print_baselines(b: &Baselines) {
     let show = |g: plumenet::ste::baseline::Guess| match g.error_m {
@@ -481,12 +500,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     if let Some(path) = &a.json {
-        let posterior: Vec<_> = est
-            .candidates()
-            .iter()
-            .zip(est.posterior())
-            .map(|(c, p)| json!({"x": c[0], "y": c[1], "p": p}))
-            .collect();
+        let posterior = plumenet::ste::protocol::posterior_json(&est);
         let mut report = json!({
             "estimate": estimate, "entropy": est.entropy(), "samples": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
@@ -498,6 +512,94 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         }
         io::write_json(path, &report)?;
         println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Layout JSON file.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// Gas feature.
+    #[arg(long, value_enum, default_value_t = FeatureArg::Rank)]
+    feature: FeatureArg,
+    #[command(flatten)]
+    plume: PlumeArgs,
+    #[command(flatten)]
+    features: FeatureArgs,
+    #[command(flatten)]
+    run: RunArgs,
+    /// Listen on this TCP address (port 0 picks a free one, printed on start); without it the
+    /// session is served on standard input and output.
+    #[arg(long)]
+    listen: Option<String>,
+    /// Keep the session's readings in this file (appended and synced before each reply) and
+    /// start from what it holds.
+    #[arg(long)]
+    state: Option<PathBuf>,
+    /// Seed of the planner's random draws.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+pub fn serve(a: ServeArgs) -> Result<()> {
+    use plumenet::service::{StateFile, serve_lines, serve_tcp};
+    use plumenet::ste::protocol::{Journal, NoJournal, Protocol};
+    use plumenet::ste::session::{Session, SessionConfig};
+    let layout = Layout::load(&a.layout)?;
+    let name = layout_name(&a.layout);
+    // Progress goes to standard error: standard output may be the protocol's.
+    let (world, model) = a.plume.world_quietly(layout)?;
+    let c = a
+        .run
+        .config(a.features.params(a.feature.into()), SensorPreset::SensorII);
+    let mut session = Session::new(
+        &world,
+        SessionConfig {
+            ste: c.ste,
+            planner: c.planner,
+            termination: c.termination,
+            robot: c.robot,
+            planner_seed: a.seed,
+        },
+    )?;
+    let mut journal: Box<dyn Journal> = match &a.state {
+        None => Box::new(NoJournal),
+        Some(path) => {
+            let (file, restored) = StateFile::open(path)?;
+            session.add_readings(&restored.readings)?;
+            session.update()?;
+            eprintln!(
+                "state {}: {} readings in {} batches restored{}",
+                path.display(),
+                restored.readings.len(),
+                restored.batches,
+                if restored.dropped_torn_line {
+                    " (a torn last line dropped)"
+                } else {
+                    ""
+                }
+            );
+            Box::new(file)
+        }
+    };
+    let mut protocol = Protocol::new(session, &name, &model);
+    match &a.listen {
+        None => {
+            let stdin = std::io::stdin();
+            serve_lines(
+                &mut protocol,
+                journal.as_mut(),
+                stdin.lock(),
+                std::io::stdout().lock(),
+            )?;
+        }
+        Some(address) => serve_tcp(&mut protocol, journal.as_mut(), address.as_str(), |at| {
+            println!("listening on {at}");
+            use std::io::Write as _;
+            let _ = std::io::stdout().flush();
+        })?,
     }
     Ok(())
 }
@@ -667,10 +769,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     let mut rows = Vec::new();
     for path in &a.layout {
         let layout = Layout::load(path)?;
-        let name = path.file_stem().map_or_else(
-            || path.display().to_string(),
-            |s| s.to_string_lossy().into(),
-        );
+        let name = layout_name(path);
         let survey = match a.paths {
             PathsArg::Planner => None,
             PathsArg::Lawnmower => Some(lawnmower(&layout, &robot, a.survey_spacing)?),
@@ -680,7 +779,8 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
             Some(s) => Paths::Survey(&s.path),
         };
         for &solver in &models {
-            let (model_world, _) = a.plume.world_of(layout.clone(), solver)?;
+            let (model_world, _, note) = a.plume.world_of(layout.clone(), solver)?;
+            println!("{note}");
             for &mismatch in &realities {
                 let world = model_world.with_mismatch(mismatch)?;
                 let bar = super::progress_bar(plan.len(), "runs");

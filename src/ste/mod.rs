@@ -13,6 +13,7 @@ pub mod experiment;
 pub mod features;
 pub mod planner;
 pub mod posterior;
+pub mod protocol;
 pub mod reality;
 pub mod replay;
 pub mod robot;

@@ -130,13 +130,13 @@ impl Session {
         &self.occupancy
     }
 
-    /// Accepts a batch of readings and returns the number accepted so far. The batch is
-    /// checked whole first: on error nothing is added.
+    /// Checks a batch of readings without taking it: every reading finite, inside the arena
+    /// and no earlier than the one before it.
     ///
     /// # Errors
     /// [`Error::Parameter`] naming the first reading that is not finite, lies outside the arena
     /// or goes back in time.
-    pub fn add_readings(&mut self, batch: &[Sample]) -> Result<usize> {
+    pub fn check_readings(&self, batch: &[Sample]) -> Result<()> {
         let layout = self.layout();
         let mut last_t = self.readings.last().map_or(f64::NEG_INFINITY, |s| s.t);
         for (k, s) in batch.iter().enumerate() {
@@ -157,6 +157,16 @@ impl Session {
             }
             last_t = s.t;
         }
+        Ok(())
+    }
+
+    /// Accepts a batch of readings and returns the number accepted so far. The batch is
+    /// checked whole first ([`Session::check_readings`]): on error nothing is added.
+    ///
+    /// # Errors
+    /// As [`Session::check_readings`].
+    pub fn add_readings(&mut self, batch: &[Sample]) -> Result<usize> {
+        self.check_readings(batch)?;
         self.readings.extend_from_slice(batch);
         self.pending += batch.len();
         Ok(self.readings.len())
@@ -171,6 +181,16 @@ impl Session {
     /// [`Error::Parameter`] when there is no position to plan from (no reading and none
     /// given), or when no goal is reachable from it.
     pub fn iterate(&mut self, position: Option<[f64; 2]>) -> Result<Iteration> {
+        self.update()?;
+        self.plan(position)
+    }
+
+    /// The first half of an iteration: brings the posterior up to date with the readings since
+    /// the last one and checks the termination rule (nothing happens without new readings).
+    ///
+    /// # Errors
+    /// None in practice: the readings were checked when they arrived.
+    pub fn update(&mut self) -> Result<()> {
         if self.pending > 0 {
             let fresh = &self.readings[self.readings.len() - self.pending..];
             self.est.update(fresh)?;
@@ -184,6 +204,10 @@ impl Session {
                 ));
             }
         }
+        Ok(())
+    }
+
+    fn plan(&mut self, position: Option<[f64; 2]>) -> Result<Iteration> {
         let done = self.converged || self.iterations >= self.config.termination.max_iterations;
         let plan = if done {
             None

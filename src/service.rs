@@ -1,0 +1,200 @@
+//! Serving a live STE session ([`crate::ste::protocol`]) over lines of text: standard
+//! input/output or TCP, one client at a time, with an optional state file so that nothing
+//! accepted is lost when the server dies.
+//!
+//! **State file.** One line per accepted batch: the batch's readings as a JSON array, written,
+//! flushed and synced before the reply goes out; a reset empties the file (synced too). On
+//! start the file is read back into the session. A last line cut short by a crash (no line
+//! break, or not a whole batch) is dropped and the file truncated to the intact lines; damage
+//! anywhere else is an error.
+
+use std::fs::{File, OpenOptions};
+use std::io::{BufRead, BufReader, Write};
+use std::net::{TcpListener, ToSocketAddrs};
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::ste::posterior::Sample;
+use crate::ste::protocol::{Journal, Protocol};
+
+/// The state file of a session.
+#[derive(Debug)]
+pub struct StateFile {
+    file: File,
+    path: PathBuf,
+}
+
+/// What [`StateFile::open`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Restored {
+    /// Every reading kept, in order.
+    pub readings: Vec<Sample>,
+    /// Batches kept.
+    pub batches: usize,
+    /// Whether a torn last line was dropped.
+    pub dropped_torn_line: bool,
+}
+
+impl StateFile {
+    /// Opens (or creates) the state file and reads back what it holds.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when it cannot be read or written, [`Error::Log`] when a line other than
+    /// the last is not a batch of readings.
+    pub fn open(path: &Path) -> Result<(Self, Restored)> {
+        let io_err = |action, source| Error::Io {
+            action,
+            path: path.to_path_buf(),
+            source,
+        };
+        let text = match std::fs::read(path) {
+            Ok(bytes) => bytes,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+            Err(e) => return Err(io_err("cannot read", e)),
+        };
+        let mut readings = Vec::new();
+        let mut batches = 0;
+        let mut intact = 0;
+        let mut dropped_torn_line = false;
+        let mut rest = text.as_slice();
+        while !rest.is_empty() {
+            let (line, whole, next) = match rest.iter().position(|&b| b == b'\n') {
+                Some(k) => (&rest[..k], true, &rest[k + 1..]),
+                None => (rest, false, &rest[rest.len()..]),
+            };
+            match serde_json::from_slice::<Vec<Sample>>(line) {
+                Ok(batch) if whole => {
+                    readings.extend(batch);
+                    batches += 1;
+                    intact += line.len() + 1;
+                }
+                _ if next.is_empty() => dropped_torn_line = true,
+                other => {
+                    let why = other.err().map_or(String::new(), |e| format!(": {e}"));
+                    return Err(Error::Log {
+                        path: path.to_path_buf(),
+                        reason: format!("state line {} is damaged{why}", batches + 1),
+                    });
+                }
+            }
+            rest = next;
+        }
+        let file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+            .map_err(|e| io_err("cannot open", e))?;
+        if dropped_torn_line {
+            file.set_len(intact as u64)
+                .and_then(|()| file.sync_all())
+                .map_err(|e| io_err("cannot truncate", e))?;
+        }
+        Ok((
+            Self {
+                file,
+                path: path.to_path_buf(),
+            },
+            Restored {
+                readings,
+                batches,
+                dropped_torn_line,
+            },
+        ))
+    }
+
+    fn io_err(&self, action: &'static str, source: std::io::Error) -> Error {
+        Error::Io {
+            action,
+            path: self.path.clone(),
+            source,
+        }
+    }
+}
+
+impl Journal for StateFile {
+    fn append(&mut self, batch: &[Sample]) -> Result<()> {
+        let mut line = serde_json::to_vec(batch).map_err(|e| Error::Json {
+            path: self.path.clone(),
+            source: e,
+        })?;
+        line.push(b'\n');
+        self.file
+            .write_all(&line)
+            .and_then(|()| self.file.flush())
+            .and_then(|()| self.file.sync_data())
+            .map_err(|e| self.io_err("cannot append to", e))
+    }
+
+    fn clear(&mut self) -> Result<()> {
+        self.file
+            .set_len(0)
+            .and_then(|()| self.file.sync_all())
+            .map_err(|e| self.io_err("cannot empty", e))
+    }
+}
+
+/// Answers every request line from `input` on `output`, in order, until the input ends (empty
+/// lines are skipped). Returns the number of requests answered.
+///
+/// # Errors
+/// [`Error::Io`] when a line cannot be read or a reply cannot be written (a client that went
+/// away).
+pub fn serve_lines(
+    protocol: &mut Protocol,
+    journal: &mut dyn Journal,
+    input: impl BufRead,
+    mut output: impl Write,
+) -> Result<usize> {
+    let io_err = |action, source| Error::Io {
+        action,
+        path: PathBuf::from("<connection>"),
+        source,
+    };
+    let mut answered = 0;
+    for line in input.lines() {
+        let line = line.map_err(|e| io_err("cannot read from", e))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let reply = protocol.handle(&line, journal);
+        writeln!(output, "{reply}")
+            .and_then(|()| output.flush())
+            .map_err(|e| io_err("cannot write to", e))?;
+        answered += 1;
+    }
+    Ok(answered)
+}
+
+/// Serves clients on `address` one at a time, for ever; `ready` is told the bound address
+/// (port 0 picks a free one). A client that disconnects, or whose connection fails, ends only
+/// its own connection: the session goes on for the next.
+///
+/// # Errors
+/// [`Error::Io`] when the address cannot be bound.
+pub fn serve_tcp(
+    protocol: &mut Protocol,
+    journal: &mut dyn Journal,
+    address: impl ToSocketAddrs,
+    ready: impl FnOnce(std::net::SocketAddr),
+) -> Result<()> {
+    let io_err = |action, source| Error::Io {
+        action,
+        path: PathBuf::from("<listen address>"),
+        source,
+    };
+    let listener = TcpListener::bind(address).map_err(|e| io_err("cannot listen on", e))?;
+    ready(
+        listener
+            .local_addr()
+            .map_err(|e| io_err("cannot read", e))?,
+    );
+    for stream in listener.incoming() {
+        let Ok(stream) = stream else { continue };
+        let Ok(reader) = stream.try_clone() else {
+            continue;
+        };
+        // A failed connection is the client's end; the session carries on.
+        let _ = serve_lines(protocol, journal, BufReader::new(reader), stream);
+    }
+    Ok(())
+}

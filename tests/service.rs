@@ -1,0 +1,233 @@
+//! The live service: the line protocol, the state file (a crash loses nothing accepted), and
+//! TCP with clients that come and go.
+
+use std::io::{BufRead, BufReader, Cursor, Write};
+use std::net::TcpStream;
+
+use serde_json::{Value, json};
+
+use plumenet::service::{StateFile, serve_lines, serve_tcp};
+use plumenet::ste::posterior::Sample;
+use plumenet::ste::protocol::{NoJournal, Protocol};
+use plumenet::ste::replay::replay;
+use plumenet::ste::session::{Session, SessionConfig};
+use plumenet::ste::{EpisodeConfig, Feature, SensorPreset, run_episode};
+
+use crate::ste::world;
+
+fn config() -> SessionConfig {
+    let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    SessionConfig {
+        ste: c.ste,
+        planner: c.planner,
+        termination: c.termination,
+        robot: c.robot,
+        planner_seed: 1,
+    }
+}
+
+fn protocol() -> Protocol {
+    Protocol::new(
+        Session::new(world(), config()).unwrap(),
+        "wind-tunnel",
+        "solver",
+    )
+}
+
+/// Readings of one simulated run, to stream.
+fn readings() -> Vec<Sample> {
+    run_episode(
+        world(),
+        &EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII),
+        [4.5, 2.5],
+        [15.0, 1.0],
+        2,
+        false,
+    )
+    .unwrap()
+    .samples
+}
+
+fn request(id: usize, op: &str, extra: Value) -> String {
+    let mut r = json!({"id": id, "op": op});
+    if let (Some(r), Some(extra)) = (r.as_object_mut(), extra.as_object()) {
+        r.extend(extra.clone());
+    }
+    r.to_string()
+}
+
+fn replies(protocol: &mut Protocol, lines: &[String]) -> Vec<Value> {
+    let mut out = Vec::new();
+    let n = serve_lines(
+        protocol,
+        &mut NoJournal,
+        Cursor::new(lines.join("\n\n")),
+        &mut out,
+    )
+    .unwrap();
+    assert_eq!(n, lines.len());
+    String::from_utf8(out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+#[test]
+fn the_protocol_answers_in_order_and_refuses_bad_requests_cleanly() {
+    let data = readings();
+    let mut p = protocol();
+    let lines = vec![
+        request(1, "hello", json!({})),
+        request(2, "iterate", json!({"position": [15.0, 1.0]})),
+        request(3, "readings", json!({"readings": &data[..300]})),
+        request(4, "readings", json!({"readings": &data[300..]})),
+        request(5, "iterate", json!({})),
+        request(6, "belief", json!({})),
+        "not json".to_string(),
+        request(7, "fly", json!({})),
+        request(
+            8,
+            "readings",
+            json!({"readings": [{"t": 0.0, "x": 1.0, "y": 1.0, "value": 1.0}]}),
+        ),
+        request(
+            9,
+            "readings",
+            json!({"readings": [{"t": 1e9, "x": 40.0, "y": 1.0, "value": 1.0}]}),
+        ),
+        request(10, "readings", json!({"readings": [{"t": 1e9, "x": 1.0}]})),
+        request(11, "belief", json!({})),
+        request(12, "reset", json!({})),
+        request(13, "iterate", json!({})),
+    ];
+    let r = replies(&mut p, &lines);
+    assert_eq!(r.len(), lines.len());
+    assert_eq!(r[0]["protocol"], 1);
+    assert_eq!(r[0]["candidates"], 1112);
+    assert_eq!(
+        (r[0]["feature"].as_str(), r[0]["model"].as_str()),
+        (Some("rank"), Some("solver"))
+    );
+    assert!(r[1]["goal"].is_array() && r[1]["iteration"] == 0);
+    assert_eq!(r[2]["accepted"], 300);
+    assert_eq!(r[3]["accepted"], data.len());
+    assert_eq!(r[4]["iteration"], 1);
+    assert_eq!(r[4]["readings"], data.len());
+    // `belief` is what `replay` gives for the same readings.
+    let est = replay(world().samplers(), config().ste, 0.07, &data).unwrap();
+    let posterior = r[5]["posterior"].as_array().unwrap();
+    for (p, q) in posterior.iter().zip(est.posterior()) {
+        assert!((p["p"].as_f64().unwrap() - q).abs() < 1e-12);
+    }
+    assert_eq!(r[5]["estimate"], json!(est.estimate()));
+    for (k, needle) in [
+        (6, "malformed request"),
+        (7, "unknown variant `fly`"),
+        (8, "goes back in time"),
+        (9, "outside the arena"),
+        (10, "missing field"),
+    ] {
+        assert_eq!(r[k]["ok"], false, "{}", r[k]);
+        assert!(r[k]["error"].as_str().unwrap().contains(needle), "{}", r[k]);
+    }
+    assert_eq!(r[6]["id"], Value::Null);
+    assert_eq!(r[7]["id"], 7);
+    // The refused requests changed nothing.
+    assert_eq!(r[11]["posterior"], r[5]["posterior"]);
+    assert_eq!(r[12]["ok"], true);
+    let err = r[13]["error"].as_str().unwrap();
+    assert!(err.contains("no position to plan from"), "{err}");
+}
+
+#[test]
+fn the_state_file_survives_a_crash_and_drops_a_torn_line() {
+    let data = readings();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("state.jsonl");
+    let (mut file, restored) = StateFile::open(&path).unwrap();
+    assert!(restored.readings.is_empty());
+    let mut p = protocol();
+    let batches: Vec<&[Sample]> = data.chunks(97).collect();
+    for (k, batch) in batches.iter().enumerate() {
+        let reply = p.handle(
+            &request(k, "readings", json!({"readings": batch})),
+            &mut file,
+        );
+        assert!(reply.contains("\"ok\":true"), "{reply}");
+    }
+    p.handle(&request(99, "iterate", json!({})), &mut file);
+    let before = p.session().estimator().posterior().to_vec();
+    drop(file);
+    // A crash in the middle of the next write leaves half a line.
+    let intact = std::fs::read(&path).unwrap();
+    let mut torn = intact.clone();
+    torn.extend_from_slice(br#"[{"t":1e6,"x":1.0,"y":"#);
+    std::fs::write(&path, &torn).unwrap();
+    let (_, restored) = StateFile::open(&path).unwrap();
+    assert!(restored.dropped_torn_line);
+    assert_eq!(restored.batches, batches.len());
+    assert_eq!(restored.readings, data);
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        intact,
+        "truncated to the intact lines"
+    );
+    let mut session = Session::new(world(), config()).unwrap();
+    session.add_readings(&restored.readings).unwrap();
+    session.update().unwrap();
+    assert_eq!(session.estimator().posterior(), &before[..]);
+    // A reset empties it; damage before the last line is an error.
+    let (mut file, _) = StateFile::open(&path).unwrap();
+    p.handle(&request(100, "reset", json!({})), &mut file);
+    assert_eq!(std::fs::metadata(&path).unwrap().len(), 0);
+    std::fs::write(&path, "[oops]\n[]\n").unwrap();
+    let err = StateFile::open(&path).unwrap_err().to_string();
+    assert!(err.contains("state line 1 is damaged"), "{err}");
+}
+
+#[test]
+fn tcp_clients_come_and_go_and_the_session_goes_on() {
+    let data = readings();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut p = protocol();
+        serve_tcp(&mut p, &mut NoJournal, "127.0.0.1:0", |at| {
+            tx.send(at).unwrap();
+        })
+        .unwrap();
+    });
+    let at = rx.recv().unwrap();
+    let talk = |lines: &[String], leave_early: bool| -> Vec<Value> {
+        let stream = TcpStream::connect(at).unwrap();
+        let mut reader = BufReader::new(stream.try_clone().unwrap());
+        let mut writer = stream;
+        let mut out = Vec::new();
+        for line in lines {
+            writeln!(writer, "{line}").unwrap();
+            let mut reply = String::new();
+            reader.read_line(&mut reply).unwrap();
+            out.push(serde_json::from_str(&reply).unwrap());
+        }
+        if leave_early {
+            // Sent without waiting for the reply, then gone.
+            writeln!(writer, "{}", request(0, "hello", json!({}))).unwrap();
+        }
+        out
+    };
+    let half = data.len() / 2;
+    let a = talk(
+        &[request(1, "readings", json!({"readings": &data[..half]}))],
+        true,
+    );
+    assert_eq!(a[0]["accepted"], half);
+    let b = talk(
+        &[
+            request(2, "readings", json!({"readings": &data[half..]})),
+            request(3, "iterate", json!({})),
+        ],
+        false,
+    );
+    assert_eq!(b[0]["accepted"], data.len());
+    assert_eq!(b[1]["readings"], data.len());
+}
