@@ -59,6 +59,8 @@ enum Command {
     Survey(ste::SurveyArgs),
     /// Serve a live STE session to a robot: JSON lines on stdin/stdout or TCP.
     Serve(ste::ServeArgs),
+    /// Play the robot (filament plume, MOX sensor, motion) against a running `serve`.
+    RobotSim(ste::RobotSimArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(ste::ExperimentArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
@@ -319,6 +321,7 @@ impl Cli {
             Command::Replay(a) => ste::replay_log(a),
             Command::Survey(a) => ste::survey(a),
             Command::Serve(a) => ste::serve(a),
+            Command::RobotSim(a) => ste::robot_sim(a),
             Command::Experiment(a) => ste::experiment(a),
             Command::BenchSte(a) => ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),

@@ -1,6 +1,7 @@
 //! Serving a live STE session ([`crate::ste::protocol`]) over lines of text: standard
 //! input/output or TCP, one client at a time, with an optional state file so that nothing
-//! accepted is lost when the server dies.
+//! accepted is lost when the server dies; and the client side ([`RemoteSession`]) that a
+//! robot, simulated or real, steers by.
 //!
 //! **State file.** One line per accepted batch: the batch's readings as a JSON array, written,
 //! flushed and synced before the reply goes out; a reset empties the file (synced too). On
@@ -10,12 +11,14 @@
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, Write};
-use std::net::{TcpListener, ToSocketAddrs};
+use std::net::{TcpListener, TcpStream, ToSocketAddrs};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::ste::posterior::Sample;
 use crate::ste::protocol::{Journal, Protocol};
+use crate::ste::run::Steering;
+use crate::ste::session::Iteration;
 
 /// The state file of a session.
 #[derive(Debug)]
@@ -197,4 +200,91 @@ pub fn serve_tcp(
         let _ = serve_lines(protocol, journal, BufReader::new(reader), stream);
     }
     Ok(())
+}
+
+/// The client side of the protocol: a session behind `plumenet serve --listen`, steering a
+/// robot (see [`crate::ste::run::Steering`]).
+#[derive(Debug)]
+pub struct RemoteSession {
+    reader: BufReader<TcpStream>,
+    writer: TcpStream,
+    next_id: u64,
+}
+
+impl RemoteSession {
+    /// Connects to a server.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when the connection cannot be made.
+    pub fn connect(address: impl ToSocketAddrs) -> Result<Self> {
+        let io_err = |source| Error::Io {
+            action: "cannot connect to",
+            path: PathBuf::from("<server>"),
+            source,
+        };
+        let writer = TcpStream::connect(address).map_err(io_err)?;
+        let reader = BufReader::new(writer.try_clone().map_err(io_err)?);
+        Ok(Self {
+            reader,
+            writer,
+            next_id: 0,
+        })
+    }
+
+    /// Sends one request and returns the reply's fields.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when the connection fails, [`Error::Parameter`] when the server refuses
+    /// the request (with its message) or answers out of order.
+    pub fn call(&mut self, op: &str, fields: serde_json::Value) -> Result<serde_json::Value> {
+        let io_err = |action, source| Error::Io {
+            action,
+            path: PathBuf::from("<server>"),
+            source,
+        };
+        self.next_id += 1;
+        let mut request = serde_json::json!({"id": self.next_id, "op": op});
+        if let (Some(r), Some(f)) = (request.as_object_mut(), fields.as_object()) {
+            r.extend(f.clone());
+        }
+        writeln!(self.writer, "{request}")
+            .and_then(|()| self.writer.flush())
+            .map_err(|e| io_err("cannot write to", e))?;
+        let mut line = String::new();
+        self.reader
+            .read_line(&mut line)
+            .map_err(|e| io_err("cannot read from", e))?;
+        let reply: serde_json::Value = serde_json::from_str(&line).map_err(|e| {
+            Error::Parameter(format!("the server's reply is not JSON ({e}): {line:?}"))
+        })?;
+        if reply["id"] != self.next_id {
+            return Err(Error::Parameter(format!(
+                "the server answered request {} to request {}",
+                reply["id"], self.next_id
+            )));
+        }
+        if reply["ok"] != true {
+            return Err(Error::Parameter(format!(
+                "the server refused {op}: {}",
+                reply["error"].as_str().unwrap_or("no reason given")
+            )));
+        }
+        Ok(reply)
+    }
+}
+
+impl Steering for RemoteSession {
+    fn send_readings(&mut self, batch: &[Sample]) -> Result<usize> {
+        let reply = self.call("readings", serde_json::json!({ "readings": batch }))?;
+        reply["accepted"]
+            .as_u64()
+            .map(|n| n as usize)
+            .ok_or_else(|| Error::Parameter("the server's reply has no count".into()))
+    }
+
+    fn iterate(&mut self, position: [f64; 2]) -> Result<Iteration> {
+        let reply = self.call("iterate", serde_json::json!({ "position": position }))?;
+        serde_json::from_value(reply)
+            .map_err(|e| Error::Parameter(format!("the server's iteration is malformed: {e}")))
+    }
 }

@@ -249,6 +249,9 @@ fn every_command_has_help() {
         "eval",
         "localize",
         "replay",
+        "survey",
+        "serve",
+        "robot-sim",
         "experiment",
         "bench-ste",
         "bench-net",
@@ -741,4 +744,17 @@ fn serve_survives_sigkill_with_its_state_file() {
         rest.last().unwrap()["estimate"],
         whole.last().unwrap()["estimate"]
     );
+}
+
+#[test]
+fn robot_sim_without_a_server_fails_cleanly() {
+    // Port 9 (discard) on loopback: nothing listens there in a test sandbox.
+    let out = plumenet(&[
+        "robot-sim",
+        "--connect",
+        "127.0.0.1:9",
+        "--source",
+        "4.5,2.5",
+    ]);
+    assert_clean_failure(&out, "cannot connect to");
 }

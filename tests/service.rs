@@ -231,3 +231,49 @@ fn tcp_clients_come_and_go_and_the_session_goes_on() {
     assert_eq!(b[0]["accepted"], data.len());
     assert_eq!(b[1]["readings"], data.len());
 }
+
+/// End to end: a simulated robot steered over TCP by a served session ends exactly where
+/// `localize` (the same session in-process) ends, with the same seed and settings.
+#[test]
+fn a_robot_steered_over_tcp_matches_localize() {
+    use plumenet::service::RemoteSession;
+    use plumenet::ste::run::{derive_seed, simulate_robot};
+    let seed = 6;
+    let (source, start) = ([5.1, 2.1], [15.0, 1.0]);
+    let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let session = Session::new(
+            world(),
+            SessionConfig {
+                planner_seed: derive_seed(seed, 3),
+                ..config()
+            },
+        )
+        .unwrap();
+        let mut p = Protocol::new(session, "wind-tunnel", "solver");
+        serve_tcp(&mut p, &mut NoJournal, "127.0.0.1:0", |at| {
+            tx.send(at).unwrap();
+        })
+        .unwrap();
+    });
+    let mut remote = RemoteSession::connect(rx.recv().unwrap()).unwrap();
+    let run = simulate_robot(
+        &world().reality,
+        &c.flight(),
+        [source, start],
+        seed,
+        c.termination.max_iterations,
+        &mut remote,
+    )
+    .unwrap();
+    let local = run_episode(world(), &c, source, start, seed, false).unwrap();
+    assert_eq!(run.last.estimate, local.estimate);
+    assert_eq!(run.legs, local.iterations);
+    assert_eq!(run.readings, local.samples.len());
+    assert_eq!(run.last.converged, local.converged);
+    assert!((run.error_m - local.error_m).abs() < 1e-12);
+    // A refused request comes back as an error naming the server's reason.
+    let err = remote.call("fly", json!({})).unwrap_err().to_string();
+    assert!(err.contains("the server refused fly"), "{err}");
+}

@@ -318,8 +318,9 @@ fn print_baselines(b: &Baselines) {
     );
 }
 
+/// Where a simulated run happens: the layout, the source and the robot's start.
 #[derive(Debug, Args)]
-pub struct LocalizeArgs {
+pub struct TrialArgs {
     /// Layout JSON file.
     #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
     layout: PathBuf,
@@ -329,6 +330,35 @@ pub struct LocalizeArgs {
     /// Robot start "X,Y" (m); default: a random free position drawn from --seed.
     #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
     start: Option<(f64, f64)>,
+}
+
+impl TrialArgs {
+    /// The layout and the source, checked to lie in free space.
+    fn layout_and_source(&self) -> Result<(Layout, [f64; 2])> {
+        let layout = Layout::load(&self.layout)?;
+        let source = [self.source.0, self.source.1];
+        layout.check_source(source[0], source[1])?;
+        Ok((layout, source))
+    }
+
+    /// The robot's start: as given, or drawn from the run seed's stream 4.
+    fn start(&self, layout: &Layout, robot: &RobotParams, seed: u64) -> Result<[f64; 2]> {
+        Ok(match self.start {
+            Some((x, y)) => [x, y],
+            None => plumenet::ste::run::random_start(
+                layout,
+                robot,
+                StartRule::Anywhere,
+                derive_seed(seed, 4),
+            )?,
+        })
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct LocalizeArgs {
+    #[command(flatten)]
+    trial: TrialArgs,
     /// Gas feature.
     #[arg(long, value_enum, default_value_t = FeatureArg::Rank)]
     feature: FeatureArg,
@@ -355,23 +385,13 @@ pub struct LocalizeArgs {
 }
 
 pub fn localize(a: LocalizeArgs) -> Result<()> {
-    let layout = Layout::load(&a.layout)?;
-    let source = [a.source.0, a.source.1];
-    layout.check_source(source[0], source[1])?;
+    let (layout, source) = a.trial.layout_and_source()?;
     let mismatch = a.reality.mismatch()?;
     let (world, model_name) = a.plume.world(layout)?;
     let world = world.with_mismatch(mismatch)?;
     let feature = Feature::from(a.feature);
     let config = a.run.config(a.features.params(feature), a.sensor.into());
-    let start = match a.start {
-        Some((x, y)) => [x, y],
-        None => plumenet::ste::run::random_start(
-            &world.layout,
-            &config.robot,
-            StartRule::Anywhere,
-            derive_seed(a.seed, 4),
-        )?,
-    };
+    let start = a.trial.start(&world.layout, &config.robot, a.seed)?;
     let episode = run_episode(&world, &config, source, start, a.seed, a.png_dir.is_some())?;
     println!(
         "{} / {} / {}: estimate ({:.2}, {:.2}), error {:.2} m, {} iterations, {}, {} samples, {:.1} s",
@@ -538,9 +558,71 @@ pub struct ServeArgs {
     /// start from what it holds.
     #[arg(long)]
     state: Option<PathBuf>,
-    /// Seed of the planner's random draws.
+    /// Run seed, as `localize --seed`: the planner draws from its stream 3.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+}
+
+#[derive(Debug, Args)]
+pub struct RobotSimArgs {
+    /// The server, HOST:PORT (`plumenet serve --listen`).
+    #[arg(long)]
+    connect: String,
+    /// The layout (the server's), the source and the start.
+    #[command(flatten)]
+    trial: TrialArgs,
+    /// Sensor.
+    #[arg(long, value_enum, default_value_t = SensorArg::SensorII)]
+    sensor: SensorArg,
+    #[command(flatten)]
+    run: RunArgs,
+    #[command(flatten)]
+    reality: RealityArgs,
+    /// Seed of the plume, the sensor noise and the default start (as `localize --seed`).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the outcome as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
+    use plumenet::service::RemoteSession;
+    let (layout, source) = a.trial.layout_and_source()?;
+    let mismatch = a.reality.mismatch()?;
+    let config = a
+        .run
+        .config(SteParams::for_feature(Feature::Rank), a.sensor.into());
+    let start = a.trial.start(&layout, &config.robot, a.seed)?;
+    let wind = WindField::solve(&layout)?;
+    let reality = Reality::new(&layout, &wind, mismatch)?;
+    let mut server = RemoteSession::connect(a.connect.as_str())?;
+    let run = plumenet::ste::run::simulate_robot(
+        &reality,
+        &config.flight(),
+        [source, start],
+        a.seed,
+        config.termination.max_iterations,
+        &mut server,
+    )?;
+    println!(
+        "estimate ({:.2}, {:.2}), error {:.2} m, {} legs, {}, {} readings",
+        run.last.estimate[0],
+        run.last.estimate[1],
+        run.error_m,
+        run.legs,
+        if run.last.converged {
+            "converged"
+        } else {
+            "not converged"
+        },
+        run.readings
+    );
+    if let Some(path) = &a.json {
+        io::write_json(path, &run)?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
 }
 
 pub fn serve(a: ServeArgs) -> Result<()> {
@@ -561,7 +643,7 @@ pub fn serve(a: ServeArgs) -> Result<()> {
             planner: c.planner,
             termination: c.termination,
             robot: c.robot,
-            planner_seed: a.seed,
+            planner_seed: derive_seed(a.seed, 3),
         },
     )?;
     let mut journal: Box<dyn Journal> = match &a.state {

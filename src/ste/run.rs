@@ -31,7 +31,7 @@ use crate::ste::reality::{Field, Flight, Mismatch, Reality};
 use crate::ste::robot::{Occupancy, RobotParams, path_length};
 use crate::ste::sampler::FieldSampler;
 use crate::ste::sensor::SensorPreset;
-use crate::ste::session::{Session, SessionConfig};
+use crate::ste::session::{Iteration, Session, SessionConfig};
 
 /// Width of the boundary band the prior excludes (m): one candidate spacing.
 pub const PRIOR_BAND_M: f64 = 0.25;
@@ -344,6 +344,120 @@ pub fn random_source(layout: &Layout, seed: u64) -> Result<[f64; 2]> {
     })
 }
 
+/// What steers the robot: a [`Session`] in this process, or one behind `plumenet serve`.
+pub trait Steering {
+    /// Sends readings; returns the number accepted so far.
+    ///
+    /// # Errors
+    /// When the readings are refused or cannot be delivered.
+    fn send_readings(&mut self, batch: &[Sample]) -> Result<usize>;
+
+    /// Asks for an iteration from `position`.
+    ///
+    /// # Errors
+    /// When no goal is reachable or the request cannot be delivered.
+    fn iterate(&mut self, position: [f64; 2]) -> Result<Iteration>;
+}
+
+impl Steering for Session {
+    fn send_readings(&mut self, batch: &[Sample]) -> Result<usize> {
+        self.add_readings(batch)
+    }
+
+    fn iterate(&mut self, position: [f64; 2]) -> Result<Iteration> {
+        Session::iterate(self, Some(position))
+    }
+}
+
+/// One leg of a steered run, as [`steer_robot`] reports it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Leg {
+    /// The goal the robot drove to.
+    pub goal: [f64; 2],
+    /// Length of the path driven (m).
+    pub path_m: f64,
+    /// Robot poses so far.
+    pub trajectory_len: usize,
+    /// The iteration after the leg's readings.
+    pub iteration: Iteration,
+}
+
+/// Drives the robot of `field` where `steer` sends it, sensing in motion, until the session is
+/// done (or after `max_iterations` legs, a guard against a planner that would stand still);
+/// `leg` is told about each leg. Returns the last iteration.
+///
+/// # Errors
+/// The steering's errors.
+pub(crate) fn steer_robot<S: Steering>(
+    field: &mut Field,
+    robot: &RobotParams,
+    max_iterations: usize,
+    steer: &mut S,
+    mut leg: impl FnMut(&Leg, &S),
+) -> Result<Iteration> {
+    let mut next = steer.iterate(field.position())?;
+    // Every drive brings readings (goals lie away from the robot), so each leg is one
+    // iteration.
+    for _ in 0..max_iterations {
+        let Some(goal) = next.goal else { break };
+        let fresh = field.drive(&next.path, robot);
+        steer.send_readings(&fresh)?;
+        let path_m = path_length(&next.path);
+        next = steer.iterate(field.position())?;
+        let step = Leg {
+            goal,
+            path_m,
+            trajectory_len: field.trajectory().len(),
+            iteration: next.clone(),
+        };
+        leg(&step, steer);
+    }
+    Ok(next)
+}
+
+/// What a robot steered from elsewhere ([`simulate_robot`]) saw.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RobotRun {
+    /// The last iteration (estimate, entropy, whether converged).
+    pub last: Iteration,
+    /// Legs driven.
+    pub legs: usize,
+    /// Readings sent.
+    pub readings: usize,
+    /// Distance from the last estimate to the source (m).
+    pub error_m: f64,
+}
+
+/// Plays the robot in `reality` (filament plume, MOX sensor, motion along the goals it gets)
+/// for `steer`: the same robot, plume and sensor streams of `seed` as [`run_episode`], so a
+/// server with the same settings (planner seed `derive_seed(seed, 3)`) steers it to the same
+/// result.
+///
+/// # Errors
+/// [`Error::Source`] when the source is not in free space, and the steering's errors.
+pub fn simulate_robot<S: Steering>(
+    reality: &Reality,
+    flight: &Flight,
+    [source, start]: [[f64; 2]; 2],
+    seed: u64,
+    max_iterations: usize,
+    steer: &mut S,
+) -> Result<RobotRun> {
+    flight.robot.check()?;
+    let mut field = Field::start(reality, flight, source, start, seed)?;
+    let mut legs = 0;
+    let last = steer_robot(&mut field, &flight.robot, max_iterations, steer, |_, _| {
+        legs += 1;
+    })?;
+    let error_m = (last.estimate[0] - source[0]).hypot(last.estimate[1] - source[1]);
+    Ok(RobotRun {
+        readings: last.readings,
+        last,
+        legs,
+        error_m,
+    })
+}
+
 /// Runs one localisation episode.
 ///
 /// # Errors
@@ -385,27 +499,24 @@ pub fn run_episode(
         },
     )?;
     let mut history = Vec::new();
-    let mut next = session.iterate(Some(start))?;
-    // Every drive brings readings (goals lie away from the robot), so each pass is one
-    // iteration; the bound only guards against a planner that would stand still.
-    for _ in 0..config.termination.max_iterations {
-        let Some(goal) = next.goal else { break };
-        let fresh = field.drive(&next.path, &config.robot);
-        session.add_readings(&fresh)?;
-        let path_m = path_length(&next.path);
-        next = session.iterate(Some(field.position()))?;
-        let est = session.estimator();
-        history.push(IterationRecord {
-            iteration: next.iteration,
-            goal,
-            path_m,
-            samples: next.readings,
-            entropy: next.entropy,
-            estimate: next.estimate,
-            posterior: keep_posteriors.then(|| est.posterior().to_vec()),
-            trajectory_len: field.trajectory().len(),
-        });
-    }
+    let next = steer_robot(
+        &mut field,
+        &config.robot,
+        config.termination.max_iterations,
+        &mut session,
+        |step, session| {
+            history.push(IterationRecord {
+                iteration: step.iteration.iteration,
+                goal: step.goal,
+                path_m: step.path_m,
+                samples: step.iteration.readings,
+                entropy: step.iteration.entropy,
+                estimate: step.iteration.estimate,
+                posterior: keep_posteriors.then(|| session.estimator().posterior().to_vec()),
+                trajectory_len: step.trajectory_len,
+            });
+        },
+    )?;
     let converged = next.converged;
     let est = session.estimator();
     let samples = session.readings().to_vec();
