@@ -197,7 +197,7 @@ pub fn time_ste_update(
         }
     }
     let support = prior_support(layout, world.sampler.candidates(), 0.07, PRIOR_BAND_M)?;
-    let mut est = Estimator::new(world.sampler.clone(), &support, params)?;
+    let mut est = Estimator::with_banks(world.samplers(), &support, params)?;
     let first = total - batch * repeats;
     est.update(&samples[..first])?;
     let n_cand = world.sampler.len();

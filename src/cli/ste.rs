@@ -950,6 +950,10 @@ pub struct BenchSteArgs {
     /// Successive timed updates (medians are reported).
     #[arg(long, default_value_t = 7)]
     repeats: usize,
+    /// Also time rank over one bank per model wind-speed factor (e.g. 0.5,1,2) against one
+    /// bank, side by side: the cost of marginalising the wind speed.
+    #[arg(long, value_delimiter = ',')]
+    wind_scales: Vec<f64>,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -987,6 +991,24 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             "candidates": t.candidates, "samples": t.samples,
         }));
     }
+    let nuisance = if a.wind_scales.len() > 1 {
+        let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
+        let rank = SteParams::for_feature(Feature::Rank);
+        let one = plumenet::bench::time_ste_update(&world, rank, a.samples, a.batch, a.repeats)?;
+        let all = plumenet::bench::time_ste_update(&banks, rank, a.samples, a.batch, a.repeats)?;
+        let k = a.wind_scales.len();
+        let per_added = (all.update_s - one.update_s) / (k - 1) as f64 / one.update_s;
+        println!(
+            "  rank over {k} wind-speed banks: update {:7.2} ms against {:.2} ms over one; each added bank costs {per_added:.2}x one bank's update",
+            all.update_s * 1e3,
+            one.update_s * 1e3
+        );
+        Some(
+            json!({"banks": k, "update_ms": all.update_s * 1e3, "one_bank_ms": one.update_s * 1e3, "per_added_bank": per_added}),
+        )
+    } else {
+        None
+    };
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     let ep = run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false)?;
     println!(
@@ -996,8 +1018,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         ep.samples.len()
     );
     if let Some(path) = &a.json {
-        let value =
-            json!({"updates": report, "run_s": ep.wall_time_s, "run_iterations": ep.iterations});
+        let value = json!({"updates": report, "run_s": ep.wall_time_s, "run_iterations": ep.iterations, "wind_scales": nuisance});
         io::write_json(path, &value)?;
     }
     Ok(())
