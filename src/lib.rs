@@ -21,7 +21,8 @@
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
 //! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (PNG
-//! rendering), [`service`] (serving a live session over lines: stdin/stdout, TCP, state file), [`stats`] (medians and spreads), [`io`] (atomic files), [`bench`](mod@bench)
+//! rendering), [`service`] (serving a live session over lines: stdin/stdout, TCP, state file), [`ros`]
+//! (the ROS 2 messages and their conversions), [`stats`] (medians and spreads), [`io`] (atomic files), [`bench`](mod@bench)
 //! (timings).
 
 #![warn(missing_docs)]
@@ -35,6 +36,7 @@ pub mod layout;
 pub mod physics;
 pub mod plume;
 pub mod report;
+pub mod ros;
 pub mod service;
 pub mod stats;
 pub mod ste;

@@ -9,6 +9,7 @@ mod filament;
 mod frame;
 mod layout;
 mod reality;
+mod ros;
 mod service;
 mod ste;
 mod surrogate;

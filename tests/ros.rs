@@ -1,0 +1,101 @@
+//! The ROS 2 messages and conversions (always built; the DDS transport is the `ros2` feature's).
+
+use plumenet::ros::msg::{Covariance, Odometry, Quaternion, Time};
+use plumenet::ros::{Pairer, belief_grid, estimate_point, goal_pose};
+
+use crate::common::wind_tunnel;
+
+#[test]
+fn times_and_headings_round_trip() {
+    for t in [0.0, 0.1, 12.345_678_9, 1_700_000_000.999_999_999] {
+        let stamp = Time::from_secs(t);
+        assert!(stamp.nanosec < 1_000_000_000);
+        assert!((stamp.secs() - t).abs() < 1e-6 * t.max(1.0), "{t}");
+    }
+    for yaw in [-3.0, -1.0, 0.0, 0.5, 3.1] {
+        assert!((Quaternion::from_yaw(yaw).yaw() - yaw).abs() < 1e-12);
+    }
+    // The goal faces along the last leg of its path, whatever repeats its end.
+    let g = goal_pose(
+        [3.0, 2.0],
+        &[[1.0, 1.0], [3.0, 1.0], [3.0, 2.0], [3.0, 2.0]],
+        "map",
+        5.0,
+    );
+    assert!((g.pose.orientation.yaw() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    assert_eq!((g.pose.position.x, g.pose.position.y), (3.0, 2.0));
+    assert_eq!(g.header.frame_id, "map");
+    assert_eq!(g.header.stamp, Time::from_secs(5.0));
+    let p = estimate_point([4.5, 2.5], "odom", 1.0);
+    assert_eq!(
+        (p.point.x, p.point.y, p.header.frame_id.as_str()),
+        (4.5, 2.5, "odom")
+    );
+}
+
+#[test]
+fn the_belief_grid_puts_each_candidate_in_its_cell() {
+    let layout = wind_tunnel();
+    let candidates = layout.candidates(0.25).unwrap();
+    // A posterior peaked at one candidate, brute-force placed.
+    let peak = 321;
+    let posterior: Vec<f64> = (0..candidates.len())
+        .map(|k| {
+            if k == peak {
+                0.5
+            } else {
+                0.5 / (candidates.len() - 1) as f64
+            }
+        })
+        .collect();
+    let grid = belief_grid(&layout, &candidates, &posterior, 0.25, "map", 2.0);
+    assert_eq!((grid.info.width, grid.info.height), (72, 16));
+    assert_eq!(grid.data.len(), 72 * 16);
+    assert_eq!(grid.info.resolution, 0.25);
+    let [x, y] = candidates[peak];
+    let cell = (y / 0.25).floor() as usize * 72 + (x / 0.25).floor() as usize;
+    assert_eq!(grid.data[cell], 100);
+    assert_eq!(grid.data.iter().filter(|&&v| v == 100).count(), 1);
+    assert!(grid.data.iter().all(|&v| v == -1 || (0..=100).contains(&v)));
+    // Cells without a candidate (obstacles) are unknown.
+    let known = grid.data.iter().filter(|&&v| v >= 0).count();
+    assert_eq!(known, candidates.len());
+    let obstacle = (1.2f64 / 0.25).floor() as usize * 72 + (7.0f64 / 0.25).floor() as usize;
+    assert_eq!(grid.data[obstacle], -1);
+}
+
+#[test]
+fn readings_pair_with_the_pose_at_their_time() {
+    let mut pairer = Pairer::new();
+    pairer.reading(0.5, 9.0); // before any pose: dropped once poses arrive
+    pairer.pose(1.0, [0.0, 0.0]);
+    pairer.pose(3.0, [2.0, 4.0]);
+    pairer.reading(1.5, 1.0);
+    pairer.reading(3.0, 2.0);
+    pairer.reading(3.5, 3.0); // waits for a later pose
+    let out = pairer.paired();
+    assert_eq!(pairer.dropped(), 1);
+    assert_eq!(out.len(), 2);
+    assert_eq!(
+        (out[0].t, out[0].x, out[0].y, out[0].value),
+        (1.5, 0.5, 1.0, 1.0)
+    );
+    assert_eq!((out[1].x, out[1].y), (2.0, 4.0));
+    pairer.pose(2.0, [9.0, 9.0]); // out of order: ignored
+    pairer.pose(4.0, [3.0, 4.0]);
+    let out = pairer.paired();
+    assert_eq!(out.len(), 1);
+    assert_eq!((out[0].t, out[0].x, out[0].y), (3.5, 2.5, 4.0));
+    assert!(pairer.paired().is_empty());
+}
+
+#[test]
+fn odometry_covariances_are_fixed_arrays_of_36() {
+    let mut odom = Odometry::default();
+    odom.pose.covariance = Covariance(std::array::from_fn(|k| k as f64));
+    let text = serde_json::to_string(&odom).unwrap();
+    let back: Odometry = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, odom);
+    let short = text.replace(",35.0]", "]");
+    assert!(serde_json::from_str::<Odometry>(&short).is_err());
+}
