@@ -61,6 +61,9 @@ enum Command {
     Serve(ste::ServeArgs),
     /// Play the robot (filament plume, MOX sensor, motion) against a running `serve`.
     RobotSim(ste::RobotSimArgs),
+    /// Run the live STE as a ROS 2 node (built with --features ros2).
+    #[cfg(feature = "ros2")]
+    Ros2Node(ste::Ros2NodeArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(ste::ExperimentArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
@@ -322,6 +325,8 @@ impl Cli {
             Command::Survey(a) => ste::survey(a),
             Command::Serve(a) => ste::serve(a),
             Command::RobotSim(a) => ste::robot_sim(a),
+            #[cfg(feature = "ros2")]
+            Command::Ros2Node(a) => ste::ros2_node(a),
             Command::Experiment(a) => ste::experiment(a),
             Command::BenchSte(a) => ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),

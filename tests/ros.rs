@@ -99,3 +99,91 @@ fn odometry_covariances_are_fixed_arrays_of_36() {
     let short = text.replace(",35.0]", "]");
     assert!(serde_json::from_str::<Odometry>(&short).is_err());
 }
+
+/// Over DDS on this machine: a second node publishes readings and poses, the STE node answers
+/// with a goal inside the arena and a belief grid (within 30 s; DDS discovery needs multicast on
+/// loopback). Built only with `--features ros2`.
+#[cfg(feature = "ros2")]
+#[test]
+fn the_node_answers_over_dds_loopback() {
+    use plumenet::ros::msg::{Float64, OccupancyGrid, Pose, PoseStamped};
+    use plumenet::ros::node::{NodeSettings, SteNode};
+    use plumenet::ste::session::Session;
+    use plumenet::ste::{EpisodeConfig, Feature, SensorPreset};
+    use ros2_client::{
+        Context, DEFAULT_PUBLISHER_QOS, DEFAULT_SUBSCRIPTION_QOS, MessageTypeName, Name, NodeName,
+        NodeOptions,
+    };
+    let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let session = Session::new(crate::ste::world(), c.session(1)).unwrap();
+    let settings = NodeSettings {
+        reading_topic: "plumenet_test/gas".into(),
+        pose_topic: "plumenet_test/pose".into(),
+        goal_topic: "plumenet_test/goal_pose".into(),
+        belief_topic: "plumenet_test/belief".into(),
+        estimate_topic: "plumenet_test/estimate".into(),
+        ..NodeSettings::default()
+    };
+    let mut ste = SteNode::new(session, settings).unwrap();
+    let context = Context::new().unwrap();
+    let mut robot = context
+        .new_node(NodeName::new("/", "robot").unwrap(), NodeOptions::new())
+        .unwrap();
+    let topic = |name: &str, package: &str, kind: &str| {
+        robot
+            .create_topic(
+                &Name::parse(name).unwrap(),
+                MessageTypeName::new(package, kind),
+                &DEFAULT_SUBSCRIPTION_QOS,
+            )
+            .unwrap()
+    };
+    let (gas_t, pose_t, goal_t, belief_t) = (
+        topic("plumenet_test/gas", "std_msgs", "Float64"),
+        topic("plumenet_test/pose", "geometry_msgs", "PoseStamped"),
+        topic("plumenet_test/goal_pose", "geometry_msgs", "PoseStamped"),
+        topic("plumenet_test/belief", "nav_msgs", "OccupancyGrid"),
+    );
+    let qos = Some(DEFAULT_PUBLISHER_QOS.clone());
+    let gas = robot
+        .create_publisher::<Float64>(&gas_t, qos.clone())
+        .unwrap();
+    let pose = robot.create_publisher::<PoseStamped>(&pose_t, qos).unwrap();
+    let goals = robot
+        .create_subscription::<PoseStamped>(&goal_t, None)
+        .unwrap();
+    let beliefs = robot
+        .create_subscription::<OccupancyGrid>(&belief_t, None)
+        .unwrap();
+    let clock = std::time::Instant::now();
+    let (mut goal, mut grid) = (None, None);
+    let mut k = 0;
+    while (goal.is_none() || grid.is_none()) && clock.elapsed().as_secs() < 30 {
+        k += 1;
+        let mut at = Pose::default();
+        at.position.x = 15.0 - 0.01 * f64::from(k);
+        at.position.y = 1.0;
+        pose.publish(PoseStamped {
+            pose: at,
+            ..PoseStamped::default()
+        })
+        .unwrap();
+        gas.publish(Float64 { data: 1.0 }).unwrap();
+        ste.spin_once().unwrap();
+        if let Ok(Some((g, _))) = goals.take() {
+            goal = Some(g);
+        }
+        if let Ok(Some((b, _))) = beliefs.take() {
+            grid = Some(b);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let goal = goal.expect("a goal within 30 s");
+    let (x, y) = (goal.pose.position.x, goal.pose.position.y);
+    assert!(
+        (0.0..=18.0).contains(&x) && (0.0..=4.0).contains(&y),
+        "goal ({x}, {y})"
+    );
+    let grid = grid.expect("a belief grid within 30 s");
+    assert_eq!((grid.info.width, grid.info.height), (72, 16));
+}

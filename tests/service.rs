@@ -15,15 +15,9 @@ use plumenet::ste::{EpisodeConfig, Feature, SensorPreset, run_episode};
 
 use crate::ste::world;
 
+/// The settings of `localize`'s default rank run with seed 1.
 fn config() -> SessionConfig {
-    let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    SessionConfig {
-        ste: c.ste,
-        planner: c.planner,
-        termination: c.termination,
-        robot: c.robot,
-        planner_seed: 1,
-    }
+    EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).session(1)
 }
 
 fn protocol() -> Protocol {
@@ -237,7 +231,7 @@ fn tcp_clients_come_and_go_and_the_session_goes_on() {
 #[test]
 fn a_robot_steered_over_tcp_matches_localize() {
     use plumenet::service::RemoteSession;
-    use plumenet::ste::run::{derive_seed, simulate_robot};
+    use plumenet::ste::run::simulate_robot;
     let seed = 6;
     let (source, start) = ([5.1, 2.1], [15.0, 1.0]);
     let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
@@ -245,10 +239,7 @@ fn a_robot_steered_over_tcp_matches_localize() {
     std::thread::spawn(move || {
         let session = Session::new(
             world(),
-            SessionConfig {
-                planner_seed: derive_seed(seed, 3),
-                ..config()
-            },
+            EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).session(seed),
         )
         .unwrap();
         let mut p = Protocol::new(session, "wind-tunnel", "solver");

@@ -920,7 +920,7 @@ fn drifting_clean_air_ties_follow_a_slow_drift() {
 #[test]
 fn a_session_takes_batches_refuses_bad_readings_and_resets() {
     use plumenet::ste::replay::replay;
-    use plumenet::ste::session::{Session, SessionConfig};
+    use plumenet::ste::session::Session;
     let ep = run_episode(
         world(),
         &EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII),
@@ -931,13 +931,7 @@ fn a_session_takes_batches_refuses_bad_readings_and_resets() {
     )
     .unwrap();
     let c = ep.config;
-    let config = SessionConfig {
-        ste: c.ste,
-        planner: c.planner,
-        termination: c.termination,
-        robot: c.robot,
-        planner_seed: 9,
-    };
+    let config = c.session(9);
     let mut session = Session::new(world(), config).unwrap();
     let err = session.iterate(None).unwrap_err().to_string();
     assert!(err.contains("no position to plan from"), "{err}");

@@ -536,8 +536,9 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     Ok(())
 }
 
+/// What a live session needs: the layout, the plume model, the STE settings and the seed.
 #[derive(Debug, Args)]
-pub struct ServeArgs {
+pub struct SessionArgs {
     /// Layout JSON file.
     #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
     layout: PathBuf,
@@ -550,6 +551,31 @@ pub struct ServeArgs {
     features: FeatureArgs,
     #[command(flatten)]
     run: RunArgs,
+    /// Run seed, as `localize --seed`: the planner draws from its stream 3.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+impl SessionArgs {
+    /// A fresh session, with the layout's and the model's names; notes go to standard error
+    /// (standard output may be a protocol's).
+    fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
+        use plumenet::ste::session::Session;
+        let layout = Layout::load(&self.layout)?;
+        let (world, model) = self.plume.world_quietly(layout)?;
+        let c = self.run.config(
+            self.features.params(self.feature.into()),
+            SensorPreset::SensorII,
+        );
+        let session = Session::new(&world, c.session(self.seed))?;
+        Ok((session, layout_name(&self.layout), model))
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    #[command(flatten)]
+    session: SessionArgs,
     /// Listen on this TCP address (port 0 picks a free one, printed on start); without it the
     /// session is served on standard input and output.
     #[arg(long)]
@@ -558,9 +584,6 @@ pub struct ServeArgs {
     /// start from what it holds.
     #[arg(long)]
     state: Option<PathBuf>,
-    /// Run seed, as `localize --seed`: the planner draws from its stream 3.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
 }
 
 #[derive(Debug, Args)]
@@ -628,24 +651,7 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
 pub fn serve(a: ServeArgs) -> Result<()> {
     use plumenet::service::{StateFile, serve_lines, serve_tcp};
     use plumenet::ste::protocol::{Journal, NoJournal, Protocol};
-    use plumenet::ste::session::{Session, SessionConfig};
-    let layout = Layout::load(&a.layout)?;
-    let name = layout_name(&a.layout);
-    // Progress goes to standard error: standard output may be the protocol's.
-    let (world, model) = a.plume.world_quietly(layout)?;
-    let c = a
-        .run
-        .config(a.features.params(a.feature.into()), SensorPreset::SensorII);
-    let mut session = Session::new(
-        &world,
-        SessionConfig {
-            ste: c.ste,
-            planner: c.planner,
-            termination: c.termination,
-            robot: c.robot,
-            planner_seed: derive_seed(a.seed, 3),
-        },
-    )?;
+    let (mut session, name, model) = a.session.session()?;
     let mut journal: Box<dyn Journal> = match &a.state {
         None => Box::new(NoJournal),
         Some(path) => {
@@ -1021,5 +1027,99 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         let value = json!({"updates": report, "run_s": ep.wall_time_s, "run_iterations": ep.iterations, "wind_scales": nuisance});
         io::write_json(path, &value)?;
     }
+    Ok(())
+}
+
+/// The ROS 2 node's topics, types and frame.
+#[cfg(feature = "ros2")]
+#[derive(Debug, Args)]
+pub struct Ros2NodeArgs {
+    #[command(flatten)]
+    session: SessionArgs,
+    /// Gas readings topic.
+    #[arg(long, default_value = "gas")]
+    reading_topic: String,
+    /// Their type: float64 (std_msgs/Float64) or float32.
+    #[arg(long, value_enum, default_value_t = ReadingTypeArg::Float64)]
+    reading_type: ReadingTypeArg,
+    /// Robot pose topic.
+    #[arg(long, default_value = "pose")]
+    pose_topic: String,
+    /// Its type: pose-stamped (geometry_msgs/PoseStamped) or odometry (nav_msgs/Odometry).
+    #[arg(long, value_enum, default_value_t = PoseTypeArg::PoseStamped)]
+    pose_type: PoseTypeArg,
+    /// Where the next goal goes (geometry_msgs/PoseStamped).
+    #[arg(long, default_value = "goal_pose")]
+    goal_topic: String,
+    /// Where the belief goes (nav_msgs/OccupancyGrid).
+    #[arg(long, default_value = "gas_source/belief")]
+    belief_topic: String,
+    /// Where the estimate goes (geometry_msgs/PointStamped).
+    #[arg(long, default_value = "gas_source/estimate")]
+    estimate_topic: String,
+    /// Frame of poses, goals, grid and estimate.
+    #[arg(long, default_value = "map")]
+    frame_id: String,
+    /// The node's namespace.
+    #[arg(long, default_value = "/")]
+    namespace: String,
+    /// The node's name.
+    #[arg(long, default_value = "plumenet")]
+    name: String,
+    /// How close the robot must come to its goal before the next iteration (m).
+    #[arg(long, default_value_t = 0.2)]
+    goal_tolerance: f64,
+}
+
+/// The gas reading message type on the command line.
+#[cfg(feature = "ros2")]
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum ReadingTypeArg {
+    Float64,
+    Float32,
+}
+
+/// The pose message type on the command line.
+#[cfg(feature = "ros2")]
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PoseTypeArg {
+    PoseStamped,
+    Odometry,
+}
+
+#[cfg(feature = "ros2")]
+pub fn ros2_node(a: Ros2NodeArgs) -> Result<()> {
+    use plumenet::ros::node::{NodeSettings, PoseType, ReadingType, SteNode};
+    let (session, name, model) = a.session.session()?;
+    let settings = NodeSettings {
+        namespace: a.namespace,
+        name: a.name,
+        reading_topic: a.reading_topic,
+        reading_type: match a.reading_type {
+            ReadingTypeArg::Float64 => ReadingType::Float64,
+            ReadingTypeArg::Float32 => ReadingType::Float32,
+        },
+        pose_topic: a.pose_topic,
+        pose_type: match a.pose_type {
+            PoseTypeArg::PoseStamped => PoseType::PoseStamped,
+            PoseTypeArg::Odometry => PoseType::Odometry,
+        },
+        goal_topic: a.goal_topic,
+        belief_topic: a.belief_topic,
+        estimate_topic: a.estimate_topic,
+        frame_id: a.frame_id,
+        spacing_m: a.session.plume.spacing(),
+        goal_tolerance_m: a.goal_tolerance,
+    };
+    let mut node = SteNode::new(session, settings)?;
+    eprintln!("ROS 2 node up: {name}, model {model}");
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    node.run(std::time::Duration::from_millis(20), &stop)?;
+    let it = node.session().estimator();
+    println!(
+        "done: estimate ({:.2}, {:.2})",
+        it.estimate()[0],
+        it.estimate()[1]
+    );
     Ok(())
 }

@@ -181,6 +181,18 @@ pub struct EpisodeConfig {
 }
 
 impl EpisodeConfig {
+    /// The live session's settings for a run of seed `seed` (the planner draws from its stream
+    /// 3), as `localize`, `serve` and `robot-sim` share them.
+    pub fn session(&self, seed: u64) -> SessionConfig {
+        SessionConfig {
+            ste: self.ste,
+            planner: self.planner,
+            termination: self.termination,
+            robot: self.robot,
+            planner_seed: derive_seed(seed, 3),
+        }
+    }
+
     /// How the robot senses in these settings.
     pub fn flight(&self) -> Flight {
         Flight {
@@ -488,16 +500,7 @@ pub fn run_episode(
         });
     }
     let mut field = Field::start(&world.reality, &config.flight(), source, start, seed)?;
-    let mut session = Session::new(
-        world,
-        SessionConfig {
-            ste: config.ste,
-            planner: config.planner,
-            termination: config.termination,
-            robot: config.robot,
-            planner_seed: derive_seed(seed, 3),
-        },
-    )?;
+    let mut session = Session::new(world, config.session(seed))?;
     let mut history = Vec::new();
     let next = steer_robot(
         &mut field,

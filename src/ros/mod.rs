@@ -432,3 +432,6 @@ impl Pairer {
         out
     }
 }
+
+#[cfg(feature = "ros2")]
+pub mod node;
