@@ -19,8 +19,12 @@ use crate::io;
 use crate::layout::Layout;
 use crate::physics::transport::Transport;
 use crate::physics::wind::WindField;
+use crate::service::{RemoteSession, serve_tcp};
 use crate::ste::posterior::prior_support;
+use crate::ste::protocol::{NoJournal, Protocol};
 use crate::ste::run::PRIOR_BAND_M;
+use crate::ste::run::Steering;
+use crate::ste::session::{Session, SessionConfig};
 use crate::ste::{Estimator, Sample, SteParams, World};
 
 /// Median timings (seconds) of the physics bank on one layout.
@@ -180,23 +184,13 @@ pub fn time_ste_update(
         .num_threads(1)
         .build()
         .map_err(|e| crate::Error::Parameter(format!("cannot build a thread pool: {e}")))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let layout = &world.layout;
-    let mut samples = Vec::with_capacity(total);
-    while samples.len() < total {
-        let x = rng.random_range(0.2..layout.width() - 0.2);
-        let y = rng.random_range(0.2..layout.height() - 0.2);
-        if layout.is_free(x, y) {
-            let t = samples.len() as f64 * 0.1;
-            samples.push(Sample {
-                t,
-                x,
-                y,
-                value: rng.random_range(0.0..1.0),
-            });
-        }
-    }
-    let support = prior_support(layout, world.sampler.candidates(), 0.07, PRIOR_BAND_M)?;
+    let samples = synthetic_readings(&world.layout, total, 0.1, 0);
+    let support = prior_support(
+        &world.layout,
+        world.sampler.candidates(),
+        0.07,
+        PRIOR_BAND_M,
+    )?;
     let mut est = Estimator::with_banks(world.samplers(), &support, params)?;
     let first = total - batch * repeats;
     est.update(&samples[..first])?;
@@ -233,5 +227,132 @@ pub fn time_ste_update(
             candidates: n_cand,
             samples: total,
         })
+    })
+}
+
+/// `count` synthetic readings `dt_s` apart at uniformly random free positions (0.2 m from the
+/// walls) with uniformly random values in `[0, 1)`, from `seed`.
+pub fn synthetic_readings(layout: &Layout, count: usize, dt_s: f64, seed: u64) -> Vec<Sample> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut samples = Vec::with_capacity(count);
+    while samples.len() < count {
+        let x = rng.random_range(0.2..layout.width() - 0.2);
+        let y = rng.random_range(0.2..layout.height() - 0.2);
+        if layout.is_free(x, y) {
+            samples.push(Sample {
+                t: samples.len() as f64 * dt_s,
+                x,
+                y,
+                value: rng.random_range(0.0..1.0),
+            });
+        }
+    }
+    samples
+}
+
+/// The time (s) of one session iteration (update of `batch` new readings on top of
+/// `total - batch`, then planning), on all cores.
+///
+/// # Errors
+/// [`crate::Error::Parameter`] for `batch` not below `total`, and the session's errors.
+pub fn time_session_iteration(
+    world: &World,
+    config: SessionConfig,
+    total: usize,
+    batch: usize,
+) -> Result<f64> {
+    if batch == 0 || batch >= total {
+        return Err(crate::Error::Parameter(format!(
+            "an iteration of {batch} readings must stay below the total {total}"
+        )));
+    }
+    let readings = synthetic_readings(&world.layout, total, 0.1, 1);
+    let mut session = Session::new(world, config)?;
+    session.add_readings(&readings[..total - batch])?;
+    session.iterate(None)?;
+    session.add_readings(&readings[total - batch..])?;
+    let clock = Instant::now();
+    session.iterate(None)?;
+    Ok(clock.elapsed().as_secs_f64())
+}
+
+/// What a streaming load test saw.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LoadReport {
+    /// Readings the client sent.
+    pub sent: usize,
+    /// Readings the server counted.
+    pub accepted: usize,
+    /// Requests refused.
+    pub errors: usize,
+    /// Round trips of `readings` + `iterate` (s), in order.
+    pub round_trips_s: Vec<f64>,
+    /// Wall-clock time of the whole stream (s).
+    pub wall_s: f64,
+    /// Resident memory (bytes) after each iteration, where the system reports it.
+    pub resident_bytes: Vec<u64>,
+}
+
+/// The process's resident memory (Linux `/proc/self/status`), when readable.
+pub fn resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Streams `rate_hz` synthetic readings per simulated second for `seconds` to a session served
+/// over TCP on loopback (in this process), one `readings` request a second and an `iterate`
+/// every `iterate_every` of them, and reports what came back. As fast as the server answers,
+/// not in real time.
+///
+/// # Errors
+/// When the server cannot be started or reached.
+pub fn serve_load(
+    world: &World,
+    config: SessionConfig,
+    rate_hz: usize,
+    seconds: usize,
+    iterate_every: usize,
+) -> Result<LoadReport> {
+    let session = Session::new(world, config)?;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut protocol = Protocol::new(session, "bench", "bench");
+        let _ = serve_tcp(&mut protocol, &mut NoJournal, "127.0.0.1:0", |at| {
+            let _ = tx.send(at);
+        });
+    });
+    let at = rx
+        .recv()
+        .map_err(|_| crate::Error::Parameter("the server did not start".into()))?;
+    let mut client = RemoteSession::connect(at)?;
+    let readings = synthetic_readings(&world.layout, rate_hz * seconds, 1.0 / rate_hz as f64, 2);
+    let clock = Instant::now();
+    let (mut accepted, mut errors) = (0, 0);
+    let mut round_trips_s = Vec::new();
+    let mut resident = Vec::new();
+    for (k, batch) in readings.chunks(rate_hz.max(1)).enumerate() {
+        let start = Instant::now();
+        match client.send_readings(batch) {
+            Ok(n) => accepted = n,
+            Err(_) => errors += 1,
+        }
+        if (k + 1) % iterate_every.max(1) == 0 {
+            let last = batch[batch.len() - 1];
+            if client.iterate([last.x, last.y]).is_err() {
+                errors += 1;
+            }
+            round_trips_s.push(start.elapsed().as_secs_f64());
+            resident.extend(resident_bytes());
+        }
+    }
+    Ok(LoadReport {
+        sent: readings.len(),
+        accepted,
+        errors,
+        round_trips_s,
+        wall_s: clock.elapsed().as_secs_f64(),
+        resident_bytes: resident,
     })
 }

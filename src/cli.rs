@@ -61,6 +61,8 @@ enum Command {
     Serve(ste::ServeArgs),
     /// Play the robot (filament plume, MOX sensor, motion) against a running `serve`.
     RobotSim(ste::RobotSimArgs),
+    /// Time session iterations and stream a load over TCP to an in-process `serve`.
+    BenchServe(ste::BenchServeArgs),
     /// Run the live STE as a ROS 2 node (built with --features ros2).
     #[cfg(feature = "ros2")]
     Ros2Node(ste::Ros2NodeArgs),
@@ -325,6 +327,7 @@ impl Cli {
             Command::Survey(a) => ste::survey(a),
             Command::Serve(a) => ste::serve(a),
             Command::RobotSim(a) => ste::robot_sim(a),
+            Command::BenchServe(a) => ste::bench_serve(a),
             #[cfg(feature = "ros2")]
             Command::Ros2Node(a) => ste::ros2_node(a),
             Command::Experiment(a) => ste::experiment(a),

@@ -252,6 +252,7 @@ fn every_command_has_help() {
         "survey",
         "serve",
         "robot-sim",
+        "bench-serve",
         "experiment",
         "bench-ste",
         "bench-net",
@@ -757,4 +758,32 @@ fn robot_sim_without_a_server_fails_cleanly() {
         "4.5,2.5",
     ]);
     assert_clean_failure(&out, "cannot connect to");
+}
+
+#[test]
+fn bench_serve_loses_no_reading() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("serve.json");
+    let out = plumenet_ok(&[
+        "bench-serve",
+        "--solver",
+        "--sizes",
+        "300",
+        "--rate",
+        "50",
+        "--seconds",
+        "20",
+        "--iterate-every",
+        "5",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("counted by the server"));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(report["load"]["sent"], 1000);
+    assert_eq!(report["load"]["accepted"], 1000);
+    assert_eq!(report["load"]["errors"], 0);
+    assert_eq!(report["load"]["round_trips_s"].as_array().unwrap().len(), 4);
+    assert!(report["iterations"][0]["iteration_ms"].as_f64().unwrap() > 0.0);
 }

@@ -1123,3 +1123,74 @@ pub fn ros2_node(a: Ros2NodeArgs) -> Result<()> {
     );
     Ok(())
 }
+
+#[derive(Debug, Args)]
+pub struct BenchServeArgs {
+    #[command(flatten)]
+    session: SessionArgs,
+    /// Readings at which one iteration (100 new readings, then planning) is timed.
+    #[arg(long, value_delimiter = ',', default_values_t = [1000, 3000, 10000])]
+    sizes: Vec<usize>,
+    /// Readings per simulated second in the load test.
+    #[arg(long, default_value_t = 100)]
+    rate: usize,
+    /// Simulated seconds streamed in the load test.
+    #[arg(long, default_value_t = 600)]
+    seconds: usize,
+    /// An iteration every this many simulated seconds.
+    #[arg(long, default_value_t = 10)]
+    iterate_every: usize,
+    /// Write the figures as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
+    let layout = Layout::load(&a.session.layout)?;
+    let (world, model) = a.session.plume.world_quietly(layout)?;
+    let config = a
+        .session
+        .run
+        .config(
+            a.session.features.params(a.session.feature.into()),
+            SensorPreset::SensorII,
+        )
+        .session(a.session.seed);
+    println!(
+        "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
+        world.sampler.len()
+    );
+    let mut sizes = Vec::new();
+    for &n in &a.sizes {
+        let s = plumenet::bench::time_session_iteration(&world, config, n, 100)?;
+        println!("  at {n:6} readings: {:8.1} ms", s * 1e3);
+        sizes.push(json!({"readings": n, "iteration_ms": s * 1e3}));
+    }
+    let load = plumenet::bench::serve_load(&world, config, a.rate, a.seconds, a.iterate_every)?;
+    let rt = &load.round_trips_s;
+    let ms = |k: usize| rt.get(k).map_or(f64::NAN, |s| s * 1e3);
+    println!(
+        "load over TCP on loopback: {} readings sent ({} a simulated second for {} s), {} counted by the server, {} errors, {:.1} s wall",
+        load.sent, a.rate, a.seconds, load.accepted, load.errors, load.wall_s
+    );
+    println!(
+        "  readings + iterate round trip: {:.1} ms at the first iteration, {:.1} ms at the last ({} iterations)",
+        ms(0),
+        ms(rt.len().saturating_sub(1)),
+        rt.len()
+    );
+    if let (Some(first), Some(last)) = (load.resident_bytes.first(), load.resident_bytes.last()) {
+        let per = (*last as f64 - *first as f64)
+            / (load.sent as f64 * (1.0 - 1.0 / rt.len().max(1) as f64)).max(1.0);
+        println!(
+            "  resident memory {:.0} MB after the first iteration, {:.0} MB after the last: {per:.0} bytes a reading",
+            *first as f64 / 1e6,
+            *last as f64 / 1e6
+        );
+    }
+    if let Some(path) = &a.json {
+        io::write_json(path, &json!({"iterations": sizes, "load": load}))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
