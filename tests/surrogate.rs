@@ -755,3 +755,36 @@ fn a_run_can_start_from_a_trained_model() {
         .to_string();
     assert!(err.contains("not the model to start from"), "{err}");
 }
+
+/// The any-room model in `models/rooms` (trained on 1000 random rooms) runs on a room of a size
+/// it never saw, close to the physics solver there, and refuses a room longer than any it
+/// trained on, naming the range.
+#[test]
+fn the_any_room_model_predicts_an_unseen_room_and_refuses_a_too_long_one() {
+    use plumenet::physics::transport::Transport;
+    use plumenet::physics::wind::WindField;
+    let model = Surrogate::load(&crate::common::repo_path("models/rooms")).unwrap();
+    let office = Layout::load(&crate::common::repo_path(
+        "data/layouts/rooms/office-9.25x7.5.json",
+    ))
+    .unwrap();
+    let source = [4.0, 1.0];
+    let field = model.predict(&office, source).unwrap();
+    assert_eq!(field.dim(), office.shape());
+    assert!(field.iter().all(|v| v.is_finite() && *v >= 0.0));
+    let wind = WindField::solve(&office).unwrap();
+    let exact = Transport::new(&office, &wind)
+        .unwrap()
+        .solve(source[0], source[1])
+        .unwrap();
+    let l2 = |a: &ndarray::Array2<f64>| a.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let rel = l2(&(&field - &exact)) / l2(&exact);
+    // The model's median on unseen rooms is 0.32 (README); this room is an easy one.
+    assert!(rel < 0.6, "relative L2 {rel}");
+    let long = Layout::from_json(
+        r#"{"width_m":36,"height_m":6,"cell_m":0.125,"wind":{"speed_mps":0.75}}"#,
+    )
+    .unwrap();
+    let err = model.predict(&long, [3.0, 3.0]).unwrap_err().to_string();
+    assert!(err.contains("30"), "{err}");
+}
