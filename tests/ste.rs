@@ -997,3 +997,38 @@ fn a_session_takes_batches_refuses_bad_readings_and_resets() {
     assert!(session.readings().is_empty());
     assert_eq!(session.iterate(Some([15.0, 1.0])).unwrap(), first);
 }
+
+/// With a window of N readings the session's posterior is `replay` over the readings from the
+/// start of the half-window block holding the N-th latest, whenever the updates came, while the
+/// accepted count goes on.
+#[test]
+fn a_windowed_session_keeps_the_last_readings() {
+    use plumenet::ste::replay::replay;
+    use plumenet::ste::session::Session;
+    let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let ep = run_episode(world(), &c, [4.5, 2.5], [15.0, 1.0], 1, false).unwrap();
+    let mut config = c.session(1);
+    config.max_readings = Some(300);
+    let mut session = Session::new(world(), config).unwrap();
+    let mut sent = 0;
+    for batch in ep.samples.chunks(170) {
+        sent += batch.len();
+        assert_eq!(session.add_readings(batch).unwrap(), sent);
+        let it = session.iterate(Some([batch[0].x, batch[0].y])).unwrap();
+        assert_eq!(it.readings, sent);
+        assert!(session.readings().len() <= 450);
+    }
+    let n = ep.samples.len();
+    assert!(n > 600);
+    let last = &ep.samples[(n - 300) / 150 * 150..];
+    assert_eq!(session.readings(), last);
+    let window = replay(world().samplers(), c.ste, c.robot.radius_m, last).unwrap();
+    for (a, b) in session
+        .estimator()
+        .posterior()
+        .iter()
+        .zip(window.posterior())
+    {
+        assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+    }
+}

@@ -554,20 +554,33 @@ pub struct SessionArgs {
     /// Run seed, as `localize --seed`: the planner draws from its stream 3.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Keep only the most recent N readings in the posterior (a sliding window: memory stays
+    /// flat in long sessions); default: all of them.
+    #[arg(long)]
+    max_readings: Option<usize>,
 }
 
 impl SessionArgs {
+    /// The session's settings.
+    fn config(&self) -> plumenet::ste::session::SessionConfig {
+        let mut config = self
+            .run
+            .config(
+                self.features.params(self.feature.into()),
+                SensorPreset::SensorII,
+            )
+            .session(self.seed);
+        config.max_readings = self.max_readings;
+        config
+    }
+
     /// A fresh session, with the layout's and the model's names; notes go to standard error
     /// (standard output may be a protocol's).
     fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
         use plumenet::ste::session::Session;
         let layout = Layout::load(&self.layout)?;
         let (world, model) = self.plume.world_quietly(layout)?;
-        let c = self.run.config(
-            self.features.params(self.feature.into()),
-            SensorPreset::SensorII,
-        );
-        let session = Session::new(&world, c.session(self.seed))?;
+        let session = Session::new(&world, self.config())?;
         Ok((session, layout_name(&self.layout), model))
     }
 }
@@ -1148,14 +1161,7 @@ pub struct BenchServeArgs {
 pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
     let layout = Layout::load(&a.session.layout)?;
     let (world, model) = a.session.plume.world_quietly(layout)?;
-    let config = a
-        .session
-        .run
-        .config(
-            a.session.features.params(a.session.feature.into()),
-            SensorPreset::SensorII,
-        )
-        .session(a.session.seed);
+    let config = a.session.config();
     println!(
         "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
         world.sampler.len()

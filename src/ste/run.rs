@@ -190,6 +190,7 @@ impl EpisodeConfig {
             termination: self.termination,
             robot: self.robot,
             planner_seed: derive_seed(seed, 3),
+            max_readings: None,
         }
     }
 

@@ -36,6 +36,12 @@ pub struct SessionConfig {
     pub robot: RobotParams,
     /// Seed of the planner's random draws.
     pub planner_seed: u64,
+    /// Keep only about the most recent this many readings, so that memory stays flat in a
+    /// session of hours: the posterior uses the readings from the start of the half-window
+    /// block that holds the `N`-th latest (between `N` and `1.5 N` of them), so the oldest half
+    /// window is dropped at a time and the window depends only on how many readings came.
+    /// `None` keeps them all, the paper's form.
+    pub max_readings: Option<usize>,
 }
 
 /// What an iteration reports.
@@ -71,6 +77,9 @@ pub struct Session {
     est: Estimator,
     planner: Planner,
     readings: Vec<Sample>,
+    /// Index (in arrival order) of `readings[0]`.
+    first: usize,
+    accepted: usize,
     pending: usize,
     iterations: usize,
     converged: bool,
@@ -103,6 +112,8 @@ impl Session {
             occupancy,
             est,
             readings: Vec::new(),
+            first: 0,
+            accepted: 0,
             pending: 0,
             iterations: 0,
             converged: false,
@@ -120,7 +131,8 @@ impl Session {
         &self.est
     }
 
-    /// Every reading accepted so far, in time order.
+    /// The readings the posterior uses (every one accepted, or the most recent
+    /// [`SessionConfig::max_readings`] of them after an update), in time order.
     pub fn readings(&self) -> &[Sample] {
         &self.readings
     }
@@ -169,7 +181,8 @@ impl Session {
         self.check_readings(batch)?;
         self.readings.extend_from_slice(batch);
         self.pending += batch.len();
-        Ok(self.readings.len())
+        self.accepted += batch.len();
+        Ok(self.accepted)
     }
 
     /// Runs an iteration: updates the posterior with the readings since the last one (when
@@ -192,8 +205,27 @@ impl Session {
     /// None in practice: the readings were checked when they arrived.
     pub fn update(&mut self) -> Result<()> {
         if self.pending > 0 {
-            let fresh = &self.readings[self.readings.len() - self.pending..];
-            self.est.update(fresh)?;
+            let start = self.config.max_readings.map_or(0, |cap| {
+                let block = (cap / 2).max(1);
+                self.accepted.saturating_sub(cap) / block * block
+            });
+            match start > self.first {
+                // The window moved on: the posterior of the readings from `start` on, rebuilt.
+                true => {
+                    self.readings.drain(..start - self.first);
+                    self.first = start;
+                    self.est = Estimator::with_banks(
+                        self.samplers.clone(),
+                        &self.support,
+                        self.config.ste,
+                    )?;
+                    self.est.update(&self.readings)?;
+                }
+                false => {
+                    let fresh = &self.readings[self.readings.len() - self.pending..];
+                    self.est.update(fresh)?;
+                }
+            }
             self.pending = 0;
             self.iterations += 1;
             self.converged = self.config.termination.converged(&self.est, &self.recent);
@@ -224,7 +256,7 @@ impl Session {
         let candidates = self.est.candidates();
         Ok(Iteration {
             iteration: self.iterations,
-            readings: self.readings.len(),
+            readings: self.accepted,
             estimate: self.est.estimate(),
             entropy: self.est.entropy(),
             credible_region: self
@@ -250,6 +282,8 @@ impl Session {
             est: Estimator::with_banks(self.samplers.clone(), &self.support, self.config.ste)?,
             planner: Planner::new(self.config.planner, self.config.planner_seed),
             readings: Vec::new(),
+            first: 0,
+            accepted: 0,
             pending: 0,
             iterations: 0,
             converged: false,
