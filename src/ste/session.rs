@@ -102,15 +102,23 @@ impl Session {
             config.robot.radius_m,
             PRIOR_BAND_M,
         )?;
-        let samplers = world.samplers();
-        let est = Estimator::with_banks(samplers.clone(), &support, config.ste)?;
+        Self::start(config, world.samplers(), support, occupancy)
+    }
+
+    /// A session at its start (uniform prior, no readings), from its parts.
+    fn start(
+        config: SessionConfig,
+        samplers: Vec<Arc<FieldSampler>>,
+        support: Vec<bool>,
+        occupancy: Occupancy,
+    ) -> Result<Self> {
         Ok(Self {
+            est: Estimator::with_banks(samplers.clone(), &support, config.ste)?,
             planner: Planner::new(config.planner, config.planner_seed),
             config,
             samplers,
             support,
             occupancy,
-            est,
             readings: Vec::new(),
             first: 0,
             accepted: 0,
@@ -209,22 +217,16 @@ impl Session {
                 let block = (cap / 2).max(1);
                 self.accepted.saturating_sub(cap) / block * block
             });
-            match start > self.first {
+            if start > self.first {
                 // The window moved on: the posterior of the readings from `start` on, rebuilt.
-                true => {
-                    self.readings.drain(..start - self.first);
-                    self.first = start;
-                    self.est = Estimator::with_banks(
-                        self.samplers.clone(),
-                        &self.support,
-                        self.config.ste,
-                    )?;
-                    self.est.update(&self.readings)?;
-                }
-                false => {
-                    let fresh = &self.readings[self.readings.len() - self.pending..];
-                    self.est.update(fresh)?;
-                }
+                self.readings.drain(..start - self.first);
+                self.first = start;
+                self.est =
+                    Estimator::with_banks(self.samplers.clone(), &self.support, self.config.ste)?;
+                self.est.update(&self.readings)?;
+            } else {
+                let fresh = &self.readings[self.readings.len() - self.pending..];
+                self.est.update(fresh)?;
             }
             self.pending = 0;
             self.iterations += 1;
@@ -278,18 +280,12 @@ impl Session {
     /// # Errors
     /// None in practice: the settings were checked when the session was made.
     pub fn reset(&mut self) -> Result<()> {
-        *self = Self {
-            est: Estimator::with_banks(self.samplers.clone(), &self.support, self.config.ste)?,
-            planner: Planner::new(self.config.planner, self.config.planner_seed),
-            readings: Vec::new(),
-            first: 0,
-            accepted: 0,
-            pending: 0,
-            iterations: 0,
-            converged: false,
-            recent: Vec::new(),
-            ..self.clone()
-        };
+        *self = Self::start(
+            self.config,
+            self.samplers.clone(),
+            self.support.clone(),
+            self.occupancy.clone(),
+        )?;
         Ok(())
     }
 }
