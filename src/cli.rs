@@ -15,7 +15,7 @@ use plumenet::layout::Layout;
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
-use plumenet::report::{FieldPlot, render_field, save_png};
+use plumenet::report::{FieldPanel, FieldPlot, Panel, save_figure};
 use plumenet::surrogate::config::WarmStart;
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
 use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
@@ -351,9 +351,12 @@ fn write_field(
         let plot = FieldPlot {
             title,
             log,
-            unit: "units/m2".into(),
+            unit: "concentration (units/m²)".into(),
         };
-        save_png(&render_field(field, layout, &plot)?, path)?;
+        save_figure(
+            &[Panel::Field(FieldPanel::new(field.clone(), layout, plot)?)],
+            path,
+        )?;
     }
     Ok(())
 }
@@ -682,31 +685,34 @@ fn eval(a: EvalArgs) -> Result<()> {
         io::write_json(path, &report)?;
     }
     if let Some(path) = &a.png {
-        let mut panels = Vec::new();
+        // The dataset is held in the canonical frame, so the maps are drawn in it.
+        let mut maps = Vec::new();
         for score in report.maps.iter().take(3) {
             let s = score.sample;
-            // The dataset is held in the canonical frame, so the maps are drawn in it.
             let real = &data.layouts()[score.layout];
             let layout = Frame::of(real).layout_to_canonical(real)?;
             let truth = data.concentration(s).mapv(f64::from);
             let pred = model.predict(&layout, data.source_xy[s])?;
             let error = &pred - &truth;
-            let title = |what: &str| format!("map {s}: {what}");
-            let log = |t: String| FieldPlot {
-                title: t,
-                log: true,
-                unit: "units/m2".into(),
-            };
-            panels.push(render_field(&pred, &layout, &log(title("PlumeNet")))?);
-            panels.push(render_field(&truth, &layout, &log(title("physics")))?);
-            let lin = FieldPlot {
-                title: title("PlumeNet - physics"),
-                log: false,
-                unit: "units/m2".into(),
-            };
-            panels.push(render_field(&error, &layout, &lin)?);
+            maps.push((s, layout, [pred, truth, error]));
         }
-        save_png(&plumenet::report::stack_vertical(&panels), path)?;
+        let mut panels = Vec::new();
+        for (s, layout, fields) in &maps {
+            let how = [
+                ("PlumeNet", true),
+                ("physics", true),
+                ("PlumeNet - physics", false),
+            ];
+            for (field, (what, log)) in fields.iter().zip(how) {
+                let plot = FieldPlot {
+                    title: format!("map {s}: {what}"),
+                    log,
+                    unit: "concentration (units/m²)".into(),
+                };
+                panels.push(Panel::Field(FieldPanel::new(field.clone(), layout, plot)?));
+            }
+        }
+        save_figure(&panels, path)?;
     }
     Ok(())
 }

@@ -20,8 +20,8 @@
 //! turned so that the wind comes from the west, where the solvers work), [`physics`] (wind,
 //! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
 //! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
-//! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (PNG
-//! rendering), [`service`] (serving a live session over lines: stdin/stdout, TCP, state file), [`ros`]
+//! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (figures:
+//! PNG and SVG through plotters), [`viewer`] (the HTML run viewer), [`service`] (serving a live session over lines: stdin/stdout, TCP, state file), [`ros`]
 //! (the ROS 2 messages and their conversions), [`stats`] (medians and spreads), [`io`] (atomic files), [`bench`](mod@bench)
 //! (timings).
 
@@ -41,6 +41,7 @@ pub mod service;
 pub mod stats;
 pub mod ste;
 pub mod surrogate;
+pub mod viewer;
 
 pub use error::{Error, Result};
 pub use layout::Layout;

@@ -1,40 +1,11 @@
 //! The binary: outputs of the main commands, and one clear error line for bad input.
 
-use std::process::{Command, Output};
+use std::process::Command;
 
 use ndarray::{Ix2, Ix3};
 use plumenet::io::read_npy;
 
-use crate::common::repo_path;
-
-fn plumenet(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_plumenet"))
-        .args(args)
-        .current_dir(repo_path(""))
-        .output()
-        .expect("binary runs")
-}
-
-/// Runs the binary and asserts that it succeeded.
-fn plumenet_ok(args: &[&str]) -> Output {
-    let out = plumenet(args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn assert_clean_failure(out: &Output, needle: &str) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !out.status.success(),
-        "expected failure ({needle}), got success; stderr {stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "panic: {stderr}");
-    assert!(stderr.contains(needle), "expected {needle:?} in {stderr}");
-}
+use crate::common::{assert_clean_failure, plumenet, plumenet_ok, repo_path};
 
 const TUNNEL: &str = "data/layouts/wind-tunnel.json";
 

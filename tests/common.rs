@@ -1,5 +1,7 @@
 //! Shared fixtures.
 
+use std::process::{Command, Output};
+
 use plumenet::layout::Layout;
 
 /// The shipped paper arena.
@@ -16,4 +18,35 @@ pub fn empty_tunnel() -> Layout {
 /// A path inside the repository.
 pub fn repo_path(rel: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+/// Runs the binary in the repository root.
+pub fn plumenet(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_plumenet"))
+        .args(args)
+        .current_dir(repo_path(""))
+        .output()
+        .expect("binary runs")
+}
+
+/// Runs the binary and asserts that it succeeded.
+pub fn plumenet_ok(args: &[&str]) -> Output {
+    let out = plumenet(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// Asserts that a run failed cleanly (no panic) with `needle` in its error.
+pub fn assert_clean_failure(out: &Output, needle: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "expected failure ({needle}), got success; stderr {stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert!(stderr.contains(needle), "expected {needle:?} in {stderr}");
 }

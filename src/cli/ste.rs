@@ -10,13 +10,14 @@ use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
-use plumenet::report::belief::{BeliefPlot, render_belief, write_episode_pictures};
-use plumenet::report::boxplot::{group_values, render_boxplots};
-use plumenet::report::{save_png, stack_vertical};
+use plumenet::report::belief::{BeliefPanel, BeliefPlot, write_episode_pictures};
+use plumenet::report::boxplot::{BoxPanel, group_values};
+
+use plumenet::report::{Panel, save_figure};
 use plumenet::ste::experiment::{
     Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
 };
-use plumenet::ste::replay::{read_log, replay};
+use plumenet::ste::replay::{read_log, replay_in_steps};
 use plumenet::ste::run::{StartRule, derive_seed};
 use plumenet::ste::survey::{fly, lawnmower};
 use plumenet::ste::{
@@ -24,6 +25,7 @@ use plumenet::ste::{
     SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
 };
 use plumenet::surrogate::Surrogate;
+use plumenet::viewer::RunView;
 
 use super::parse_point;
 
@@ -382,6 +384,9 @@ pub struct LocalizeArgs {
     /// Write one picture per iteration into this directory.
     #[arg(long)]
     png_dir: Option<PathBuf>,
+    /// Write the run viewer: one self-contained HTML page with a slider over the iterations.
+    #[arg(long)]
+    html: Option<PathBuf>,
 }
 
 pub fn localize(a: LocalizeArgs) -> Result<()> {
@@ -392,7 +397,8 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let feature = Feature::from(a.feature);
     let config = a.run.config(a.features.params(feature), a.sensor.into());
     let start = a.trial.start(&world.layout, &config.robot, a.seed)?;
-    let episode = run_episode(&world, &config, source, start, a.seed, a.png_dir.is_some())?;
+    let keep_posteriors = a.png_dir.is_some() || a.html.is_some();
+    let episode = run_episode(&world, &config, source, start, a.seed, keep_posteriors)?;
     println!(
         "{} / {} / {}: estimate ({:.2}, {:.2}), error {:.2} m, {} iterations, {}, {} samples, {:.1} s",
         feature.name(),
@@ -423,6 +429,26 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
             dir,
         )?;
         println!("wrote {} pictures into {}", paths.len(), dir.display());
+    }
+    if let Some(path) = &a.html {
+        let title = format!(
+            "localize: {} / {} / {}, seed {}: error {:.2} m after {} iterations",
+            feature.name(),
+            config.sensor.name(),
+            model_name,
+            a.seed,
+            episode.error_m,
+            episode.iterations
+        );
+        RunView::from_episode(
+            title,
+            &world.layout,
+            world.sampler.candidates(),
+            a.plume.spacing(),
+            &episode,
+        )?
+        .write(path)?;
+        println!("wrote {}", path.display());
     }
     if let Some(path) = &a.json {
         let mut value = serde_json::to_value(&episode)?;
@@ -460,9 +486,16 @@ pub struct ReplayArgs {
     /// Write estimate and posterior as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
-    /// Draw the posterior with the samples.
+    /// Draw the posterior with the samples (PNG, or SVG when the name ends in .svg).
     #[arg(long)]
     png: Option<PathBuf>,
+    /// Write the run viewer: one self-contained HTML page with a slider over the replay taken
+    /// in --html-steps chunks of readings.
+    #[arg(long)]
+    html: Option<PathBuf>,
+    /// Chunks of readings the viewer's replay takes them in (its iterations).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    html_steps: u64,
 }
 
 pub fn replay_log(a: ReplayArgs) -> Result<()> {
@@ -475,7 +508,12 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let (world, model_name) = a.plume.world(layout)?;
     let feature = Feature::from(a.feature);
     let params = a.features.params(feature);
-    let est = replay(world.samplers(), params, a.robot_radius, &samples)?;
+    let steps = if a.html.is_some() {
+        a.html_steps as usize
+    } else {
+        1
+    };
+    let (est, trace) = replay_in_steps(world.samplers(), params, a.robot_radius, &samples, steps)?;
     let wind_scales: Vec<[f64; 2]> = world
         .banks
         .iter()
@@ -502,9 +540,9 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             estimate[0],
             estimate[1]
         );
-        let img = render_belief(
+        let panel = BeliefPanel::new(
             &world.layout,
-            &BeliefPlot {
+            BeliefPlot {
                 title: &title,
                 candidates: est.candidates(),
                 spacing_m: a.plume.spacing(),
@@ -512,11 +550,36 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
                 trajectory: &[],
                 samples: est.positions(),
                 edf: est.measured_edf(),
-                source: None,
+                source,
                 estimate,
             },
         )?;
-        save_png(&img, path)?;
+        save_figure(&[Panel::Belief(panel)], path)?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &a.html {
+        let view = RunView::from_replay(
+            &world.layout,
+            est.candidates(),
+            a.plume.spacing(),
+            &params,
+            &samples,
+            &trace,
+        );
+        let title = format!(
+            "replay of {}: {} / {}, {} readings in {} steps",
+            a.log.display(),
+            feature.name(),
+            model_name,
+            samples.len(),
+            trace.len()
+        );
+        RunView {
+            title,
+            source,
+            ..view
+        }
+        .write(path)?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &a.json {
@@ -910,18 +973,25 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         buf.extend_from_slice(table.as_bytes());
         Ok(())
     })?;
-    let panel = |title: &str, metric: fn(&RunRow) -> f64, baselines: bool| {
-        render_boxplots(title, &group_values(&plot_values(&rows, metric, baselines)))
+    let panel = |title: &str, y_desc: &str, metric: fn(&RunRow) -> f64, baselines: bool| {
+        Panel::Boxes(BoxPanel {
+            title: title.into(),
+            y_desc: y_desc.into(),
+            groups: group_values(&plot_values(&rows, metric, baselines)),
+        })
     };
-    let plot = stack_vertical(&[
-        panel(
-            "localisation error (m), with the highest-reading and centre baselines",
-            |r| r.error_m,
-            true,
-        ),
-        panel("iterations", |r| r.iterations as f64, false),
-    ]);
-    save_png(&plot, &a.out.join("boxplots.png"))?;
+    save_figure(
+        &[
+            panel(
+                "localisation error, with the highest-reading and centre baselines",
+                "error (m)",
+                |r| r.error_m,
+                true,
+            ),
+            panel("iterations", "iterations", |r| r.iterations as f64, false),
+        ],
+        &a.out.join("boxplots.png"),
+    )?;
     print!("{table}");
     println!("wrote {}", a.out.display());
     Ok(())

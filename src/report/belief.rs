@@ -1,27 +1,29 @@
-//! The picture of one STE iteration, like the paper's estimation figure: the posterior as a
-//! colour map over the arena, obstacles, the robot's trajectory, the samples coloured by their
-//! EDF value (the rank feature), the true source and the estimate.
+//! The picture of one STE iteration, like the paper's estimation figure: the posterior over the
+//! arena (each candidate paints its square), obstacles, the robot's trajectory, the readings
+//! coloured by their rank, the true source and the estimate, with a legend.
 
 use std::path::{Path, PathBuf};
 
-use image::{Rgb, RgbImage};
+use colorous::PLASMA;
 use ndarray::Array2;
+use plotters::coord::Shift;
+use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
-use crate::report::{BLACK, FieldPlot, WHITE, disc, put, render_field_framed, save_png};
+use crate::report::{FieldPanel, FieldPlot, Panel, Plot, colour, save_figure, text};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::run::Episode;
 
-const TRAJECTORY: Rgb<u8> = Rgb([200, 200, 200]);
-const SOURCE: Rgb<u8> = Rgb([230, 30, 30]);
+const TRAJECTORY: RGBColor = RGBColor(215, 215, 215);
+const SOURCE: RGBColor = RGBColor(230, 30, 30);
 
-/// What to draw on top of the posterior.
+/// What to draw.
 #[derive(Debug, Clone, Copy)]
 pub struct BeliefPlot<'a> {
     /// Title above the map.
     pub title: &'a str,
-    /// Candidate positions (m) and their spacing (m).
+    /// Candidate positions (m).
     pub candidates: &'a [[f64; 2]],
     /// Candidate spacing (m): each candidate paints its square.
     pub spacing_m: f64,
@@ -31,7 +33,7 @@ pub struct BeliefPlot<'a> {
     pub trajectory: &'a [[f64; 3]],
     /// Sample positions.
     pub samples: &'a [[f64; 2]],
-    /// EDF value of each sample, in `[0, 1]`.
+    /// Rank (EDF) of each sample among the samples, in `[0, 1]`.
     pub edf: &'a [f32],
     /// True source, when known.
     pub source: Option<[f64; 2]>,
@@ -39,61 +41,108 @@ pub struct BeliefPlot<'a> {
     pub estimate: [f64; 2],
 }
 
-/// Renders one iteration.
-///
-/// # Errors
-/// [`crate::Error::Parameter`] when the posterior holds NaN.
-pub fn render_belief(layout: &Layout, plot: &BeliefPlot<'_>) -> Result<RgbImage> {
-    let (ny, nx) = layout.shape();
-    let mut field = Array2::<f64>::zeros((ny, nx));
-    let half = 0.5 * plot.spacing_m;
-    for (&[cx, cy], &p) in plot.candidates.iter().zip(plot.posterior) {
-        for ((j, i), v) in field.indexed_iter_mut() {
-            let (x, y) = layout.cell_centre(j, i);
-            if (x - cx).abs() < half && (y - cy).abs() < half {
-                *v = p;
-            }
+/// A belief panel: the posterior's [`FieldPanel`] with the run drawn on top.
+#[derive(Debug, Clone)]
+pub struct BeliefPanel<'a> {
+    map: FieldPanel<'a>,
+    plot: BeliefPlot<'a>,
+}
+
+impl<'a> BeliefPanel<'a> {
+    /// The panel of one iteration.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] when the posterior holds NaN or is not one value per candidate.
+    pub fn new(layout: &'a Layout, plot: BeliefPlot<'a>) -> Result<Self> {
+        if plot.posterior.len() != plot.candidates.len() {
+            return Err(Error::Parameter(format!(
+                "{} posterior values for {} candidates",
+                plot.posterior.len(),
+                plot.candidates.len()
+            )));
         }
-    }
-    let (mut img, frame) = render_field_framed(
-        &field,
-        layout,
-        &FieldPlot {
+        let (ny, nx) = layout.shape();
+        let mut field = Array2::zeros((ny, nx));
+        // Cell k (centre (k + 0.5) cell) lies in the square around c when
+        // |(k + 0.5) cell - c| < spacing / 2.
+        let span = |c: f64, n: usize| {
+            let (lo, hi) = ((c - 0.5 * plot.spacing_m), (c + 0.5 * plot.spacing_m));
+            let first = ((lo / layout.cell() - 0.5).floor() + 1.0).max(0.0) as usize;
+            first..((hi / layout.cell() - 0.5).ceil().max(0.0) as usize).min(n)
+        };
+        for (&[x, y], &p) in plot.candidates.iter().zip(plot.posterior) {
+            field
+                .slice_mut(ndarray::s![span(y, ny), span(x, nx)])
+                .fill(p);
+        }
+        let map = FieldPlot {
             title: plot.title.to_string(),
             log: false,
-            unit: "P".into(),
-        },
-    )?;
-    for &[_, x, y] in plot.trajectory {
-        put(&mut img, frame.pixel(x, y), TRAJECTORY);
+            unit: "posterior probability".into(),
+        };
+        Ok(Self {
+            map: FieldPanel::new(field, layout, map)?,
+            plot,
+        })
     }
-    for (&[x, y], &e) in plot.samples.iter().zip(plot.edf) {
-        let c = colorous::PLASMA.eval_continuous(f64::from(e).clamp(0.0, 1.0));
-        disc(&mut img, frame.pixel(x, y), 2, Rgb([c.r, c.g, c.b]));
+
+    pub(crate) fn size(&self) -> (u32, u32) {
+        self.map.size()
     }
-    if let Some([x, y]) = plot.source {
-        let p = frame.pixel(x, y);
-        disc(&mut img, p, 7, BLACK);
-        disc(&mut img, p, 5, SOURCE);
-    }
-    let (ex, ey) = frame.pixel(plot.estimate[0], plot.estimate[1]);
-    for d in -6i64..=6 {
-        for w in -1i64..=1 {
-            put(&mut img, (ex + d, ey + d + w), BLACK);
-            put(&mut img, (ex + d, ey - d + w), BLACK);
+
+    pub(crate) fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
+        let mut chart = self.map.draw(area)?;
+        let p = &self.plot;
+        let path = p.trajectory.iter().map(|&[_, x, y]| (x, y));
+        chart
+            .draw_series(LineSeries::new(path, TRAJECTORY.stroke_width(2)))
+            .plot()?
+            .label("trajectory")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], TRAJECTORY.stroke_width(3)));
+        let dot = |(x, y), e: f32| Circle::new((x, y), 3, colour(&PLASMA, f64::from(e)).filled());
+        chart
+            .draw_series(
+                p.samples
+                    .iter()
+                    .zip(p.edf)
+                    .map(|(&[x, y], &e)| dot((x, y), e)),
+            )
+            .plot()?
+            .label("readings (colour: rank, low to high)")
+            .legend(|(x, y)| Circle::new((x + 8, y), 4, colour(&PLASMA, 0.8).filled()));
+        if let Some([x, y]) = p.source {
+            let marks = [(8, BLACK), (6, SOURCE)].map(|(r, c)| Circle::new((x, y), r, c.filled()));
+            chart
+                .draw_series(marks)
+                .plot()?
+                .label("true source")
+                .legend(|(x, y)| Circle::new((x + 8, y), 5, SOURCE.filled()));
         }
-        put(&mut img, (ex + d, ey + d), WHITE);
-        put(&mut img, (ex + d, ey - d), WHITE);
+        let [x, y] = p.estimate;
+        let marks = [(BLACK, 4), (WHITE, 2)].map(|(c, w)| Cross::new((x, y), 8, c.stroke_width(w)));
+        chart
+            .draw_series(marks)
+            .plot()?
+            .label("estimate")
+            .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(text(12))
+            .draw()
+            .plot()
     }
-    Ok(img)
 }
 
 /// Writes one picture per iteration of a run (`iter-01.png`, ...) into `dir` and returns their
-/// paths. Each shows the posterior after that iteration with the trajectory and samples so far.
+/// paths. Each shows the posterior after that iteration with the trajectory and readings so
+/// far, the readings coloured by their rank among those so far.
 ///
 /// # Errors
-/// [`crate::Error::Parameter`] when the run kept no posteriors (run it with pictures asked
-/// for), and rendering or write failures.
+/// [`Error::Parameter`] when the run kept no posteriors (run it with pictures asked for), and
+/// rendering or write failures.
 pub fn write_episode_pictures(
     layout: &Layout,
     candidates: &[[f64; 2]],
@@ -115,7 +164,7 @@ pub fn write_episode_pictures(
         let mut edf = FeatureTrack::new(Feature::Rank, FeatureParams::default());
         edf.extend(&values);
         let title = format!(
-            "iteration {}  {} / {}  H {:.2}  estimate ({:.2}, {:.2})",
+            "iteration {}   {} / {}   entropy {:.2} nats   estimate ({:.2}, {:.2}) m",
             rec.iteration,
             episode.config.ste.feature.name(),
             episode.config.sensor.name(),
@@ -123,22 +172,19 @@ pub fn write_episode_pictures(
             rec.estimate[0],
             rec.estimate[1]
         );
-        let img = render_belief(
-            layout,
-            &BeliefPlot {
-                title: &title,
-                candidates,
-                spacing_m,
-                posterior,
-                trajectory: &episode.trajectory[..rec.trajectory_len],
-                samples: &positions[..rec.samples],
-                edf: edf.features(),
-                source: Some(episode.source),
-                estimate: rec.estimate,
-            },
-        )?;
+        let plot = BeliefPlot {
+            title: &title,
+            candidates,
+            spacing_m,
+            posterior,
+            trajectory: &episode.trajectory[..rec.trajectory_len],
+            samples: &positions[..rec.samples],
+            edf: edf.features(),
+            source: Some(episode.source),
+            estimate: rec.estimate,
+        };
         let path = dir.join(format!("iter-{:02}.png", rec.iteration));
-        save_png(&img, &path)?;
+        save_figure(&[Panel::Belief(BeliefPanel::new(layout, plot)?)], &path)?;
         out.push(path);
     }
     Ok(out)

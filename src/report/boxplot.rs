@@ -2,17 +2,12 @@
 //! Boxes span the quartiles with a line at the median; whiskers reach the furthest value within
 //! 1.5 interquartile ranges; values beyond are drawn as dots.
 
-use image::{Rgb, RgbImage};
+use plotters::coord::Shift;
+use plotters::prelude::*;
 
-use crate::report::{BLACK, WHITE, disc, draw_text, put};
-
-const W: u32 = 960;
-const H: u32 = 320;
-const LEFT: u32 = 70;
-const RIGHT: u32 = 20;
-const TOP: u32 = 30;
-const BOTTOM: u32 = 50;
-const GRID: Rgb<u8> = Rgb([220, 220, 220]);
+use crate::error::Result;
+use crate::report::field::tick_label;
+use crate::report::{Plot, text};
 
 /// One group of boxes (a feature), each box a named sample (a sensor).
 #[derive(Debug, Clone, PartialEq)]
@@ -47,127 +42,145 @@ pub fn group_values(values: &[(String, String, f64)]) -> Vec<BoxGroup> {
     groups
 }
 
-/// Quartiles by linear interpolation (the "type 7" rule of R and numpy).
-fn quantile(sorted: &[f64], q: f64) -> f64 {
-    let pos = q * (sorted.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    sorted[lo] + (pos - lo as f64) * (sorted[hi] - sorted[lo])
+/// A box: whiskers, quartiles, median, and the values beyond the whiskers.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoxStats {
+    /// `[low whisker, q1, median, q3, high whisker]`: quartiles by linear interpolation (the
+    /// "type 7" rule of R and numpy), whiskers at the furthest values within 1.5 IQR.
+    pub five: [f64; 5],
+    /// Values beyond the whiskers.
+    pub outliers: Vec<f64>,
 }
 
-fn series_colour(k: usize) -> Rgb<u8> {
-    let c = colorous::TABLEAU10[k % colorous::TABLEAU10.len()];
-    Rgb([c.r, c.g, c.b])
-}
-
-fn fill_rect(img: &mut RgbImage, x0: i64, y0: i64, x1: i64, y1: i64, colour: Rgb<u8>) {
-    for y in y0.min(y1)..=y0.max(y1) {
-        for x in x0.min(x1)..=x0.max(x1) {
-            put(img, (x, y), colour);
+impl BoxStats {
+    /// The box of the finite values; `None` when there are none.
+    pub fn of(values: &[f64]) -> Option<Self> {
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
         }
+        v.sort_by(f64::total_cmp);
+        let q = |q: f64| {
+            let pos = q * (v.len() - 1) as f64;
+            let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+            v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
+        };
+        let (q1, median, q3) = (q(0.25), q(0.5), q(0.75));
+        let reach = 1.5 * (q3 - q1);
+        let low = *v.iter().find(|&&x| x >= q1 - reach)?;
+        let high = *v.iter().rev().find(|&&x| x <= q3 + reach)?;
+        let outliers = v.iter().copied().filter(|&x| x < low || x > high).collect();
+        Some(Self {
+            five: [low, q1, median, q3, high],
+            outliers,
+        })
     }
 }
 
-/// Renders one panel of box plots with a title and a labelled y axis starting at zero.
-pub fn render_boxplots(title: &str, groups: &[BoxGroup]) -> RgbImage {
-    let mut img = RgbImage::from_pixel(W, H, WHITE);
-    draw_text(&mut img, LEFT, 8, title);
-    let top_value = groups
-        .iter()
-        .flat_map(|g| g.boxes.iter().flat_map(|b| b.1.iter().copied()))
-        .filter(|v| v.is_finite())
-        .fold(0.0_f64, f64::max)
-        .max(1e-9)
-        * 1.05;
-    let (plot_w, plot_h) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
-    let y_of =
-        |v: f64| i64::from(TOP + plot_h) - (v / top_value * f64::from(plot_h)).round() as i64;
-    for k in 0..=4 {
-        let v = top_value * f64::from(k) / 4.0;
-        let y = y_of(v);
-        fill_rect(
-            &mut img,
-            i64::from(LEFT),
-            y,
-            i64::from(LEFT + plot_w),
-            y,
-            GRID,
-        );
-        draw_text(&mut img, 8, (y - 4).max(0) as u32, &format!("{v:.2}"));
+/// One panel of box plots: a title, a y axis from zero, one group per label on the x axis and
+/// a legend of the series.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoxPanel {
+    /// Title above the plot.
+    pub title: String,
+    /// The y axis's description.
+    pub y_desc: String,
+    /// The groups, left to right.
+    pub groups: Vec<BoxGroup>,
+}
+
+impl BoxPanel {
+    pub(crate) fn size(&self) -> (u32, u32) {
+        (960, 340)
     }
-    let axis_bottom = i64::from(TOP + plot_h);
-    fill_rect(
-        &mut img,
-        i64::from(LEFT),
-        i64::from(TOP),
-        i64::from(LEFT),
-        axis_bottom,
-        BLACK,
-    );
-    fill_rect(
-        &mut img,
-        i64::from(LEFT),
-        axis_bottom,
-        i64::from(LEFT + plot_w),
-        axis_bottom,
-        BLACK,
-    );
-    let group_w = f64::from(plot_w) / groups.len().max(1) as f64;
-    let mut legend: Vec<String> = Vec::new();
-    for (g, group) in groups.iter().enumerate() {
-        let gx = f64::from(LEFT) + g as f64 * group_w;
-        let nb = group.boxes.len().max(1) as f64;
-        let box_w = (group_w * 0.7 / nb).min(40.0);
-        for (b, (name, values)) in group.boxes.iter().enumerate() {
-            if !legend.contains(name) {
-                legend.push(name.clone());
-            }
-            let colour = series_colour(legend.iter().position(|n| n == name).unwrap_or(0));
-            let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
-            if v.is_empty() {
-                continue;
-            }
-            v.sort_by(f64::total_cmp);
-            let (q1, med, q3) = (quantile(&v, 0.25), quantile(&v, 0.5), quantile(&v, 0.75));
-            let iqr = q3 - q1;
-            let lo = v
-                .iter()
-                .copied()
-                .find(|&x| x >= q1 - 1.5 * iqr)
-                .unwrap_or(q1);
-            let hi = v
-                .iter()
-                .rev()
-                .copied()
-                .find(|&x| x <= q3 + 1.5 * iqr)
-                .unwrap_or(q3);
-            let cx = gx + group_w * 0.15 + box_w * (b as f64 + 0.5);
-            let (x0, x1) = ((cx - box_w * 0.4) as i64, (cx + box_w * 0.4) as i64);
-            let xm = cx as i64;
-            fill_rect(&mut img, xm, y_of(lo), xm, y_of(q1), BLACK);
-            fill_rect(&mut img, xm, y_of(q3), xm, y_of(hi), BLACK);
-            fill_rect(&mut img, xm - 4, y_of(lo), xm + 4, y_of(lo), BLACK);
-            fill_rect(&mut img, xm - 4, y_of(hi), xm + 4, y_of(hi), BLACK);
-            fill_rect(&mut img, x0, y_of(q3), x1, y_of(q1), colour);
-            fill_rect(&mut img, x0, y_of(med), x1, y_of(med), BLACK);
-            for &x in v.iter().filter(|&&x| x < lo || x > hi) {
-                disc(&mut img, (xm, y_of(x)), 2, BLACK);
+
+    pub(crate) fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
+        let all = self
+            .groups
+            .iter()
+            .flat_map(|g| g.boxes.iter().flat_map(|b| &b.1));
+        // Headroom above the highest value keeps the legend (upper left) off the boxes.
+        let top = all
+            .filter(|v| v.is_finite())
+            .fold(1e-9_f64, |a, &b| a.max(b))
+            * 1.5;
+        let n = self.groups.len().max(1);
+        let mut chart = ChartBuilder::on(area)
+            .caption(&self.title, text(17))
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..n as f64, 0.0..top)
+            .plot()?;
+        // Group labels sit at the groups' centres, k + 0.5.
+        let label = |x: &f64| match self.groups.get((x - 0.5).round().max(0.0) as usize) {
+            Some(g) if ((x - 0.5) - (x - 0.5).round()).abs() < 1e-9 => g.label.clone(),
+            _ => String::new(),
+        };
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .light_line_style(WHITE)
+            .bold_line_style(RGBColor(225, 225, 225))
+            .x_labels(2 * n + 1)
+            .x_label_formatter(&label)
+            .y_label_formatter(&|v| tick_label(*v))
+            .y_desc(self.y_desc.as_str())
+            .label_style(text(13))
+            .axis_desc_style(text(14))
+            .draw()
+            .plot()?;
+        let mut legend: Vec<&str> = Vec::new();
+        for (g, group) in self.groups.iter().enumerate() {
+            let nb = group.boxes.len().max(1) as f64;
+            let w = (0.7 / nb).min(0.2);
+            for (b, (name, values)) in group.boxes.iter().enumerate() {
+                let Some(s) = BoxStats::of(values) else {
+                    continue;
+                };
+                let [low, q1, median, q3, high] = s.five;
+                let k = legend
+                    .iter()
+                    .position(|n| n == name)
+                    .unwrap_or(legend.len());
+                let new = k == legend.len();
+                if new {
+                    legend.push(name);
+                }
+                let c = colorous::TABLEAU10[k % colorous::TABLEAU10.len()];
+                let fill = RGBColor(c.r, c.g, c.b);
+                let cx = g as f64 + 0.5 + w * (b as f64 + 0.5 - 0.5 * nb);
+                let (x0, x1) = (cx - 0.4 * w, cx + 0.4 * w);
+                // Whiskers with caps from low to high; the box then covers their middle.
+                let whiskers = ErrorBar::new_vertical(cx, low, median, high, BLACK, 10);
+                chart.draw_series([whiskers]).plot()?;
+                let boxed = chart
+                    .draw_series([Rectangle::new([(x0, q1), (x1, q3)], fill.filled())])
+                    .plot()?;
+                if new {
+                    boxed.label(name.as_str()).legend(move |(x, y)| {
+                        Rectangle::new([(x, y - 5), (x + 12, y + 5)], fill.filled())
+                    });
+                }
+                let outline = [(x0, q1), (x1, q1), (x1, q3), (x0, q3), (x0, q1)];
+                let mid = [(x0, median), (x1, median)];
+                let lines = [(&outline[..], 1), (&mid[..], 2)];
+                let lines = lines.map(|(p, w)| PathElement::new(p.to_vec(), BLACK.stroke_width(w)));
+                chart.draw_series(lines).plot()?;
+                let dots = s
+                    .outliers
+                    .iter()
+                    .map(|&v| Circle::new((cx, v), 2, BLACK.filled()));
+                chart.draw_series(dots).plot()?;
             }
         }
-        let label_x = (gx + group_w / 2.0 - 4.0 * group.label.len() as f64).max(0.0) as u32;
-        draw_text(&mut img, label_x, TOP + plot_h + 8, &group.label);
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(text(12))
+            .draw()
+            .plot()
     }
-    let mut lx = LEFT;
-    for (k, name) in legend.iter().enumerate() {
-        fill_rect(
-            &mut img,
-            i64::from(lx),
-            i64::from(H - 18),
-            i64::from(lx + 12),
-            i64::from(H - 8),
-            series_colour(k),
-        );
-        draw_text(&mut img, lx + 18, H - 17, name);
-        lx += 30 + 8 * name.len() as u32;
-    }
-    img
 }

@@ -1,187 +1,93 @@
-//! PNG pictures: a field over the arena with obstacles, a perceptual colour map (viridis),
-//! optional log scale, and a labelled colour bar.
+//! Figures drawn with `plotters`: fields over the arena ([`field`]), STE beliefs ([`belief`]) and
+//! the study's box plots ([`boxplot`]), with axes in metres, ticks, titles, labelled colour bars
+//! and legends; written as PNG, or as SVG when the file name ends in `.svg`.
+//!
+//! Text is DejaVu Sans, embedded by the `dejavu` crate and rasterised by ab_glyph: a machine
+//! without system fonts draws the same pictures.
 
 use std::path::Path;
+use std::sync::Once;
 
-use font8x8::UnicodeFonts;
-use image::{ImageEncoder, Rgb, RgbImage};
-use ndarray::Array2;
+use image::ImageEncoder;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
 
 use crate::error::{Error, Result};
 use crate::io;
-use crate::layout::Layout;
 
 pub mod belief;
 pub mod boxplot;
+pub mod field;
 
-/// Decades shown below the maximum on a log scale.
-pub const LOG_DECADES: f64 = 4.0;
+pub use field::{FieldPanel, FieldPlot, LOG_DECADES};
 
-pub(crate) const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
-pub(crate) const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
-const OBSTACLE: Rgb<u8> = Rgb([90, 90, 90]);
-const MARGIN: u32 = 12;
-const TITLE_H: u32 = 28;
-const BAR_W: u32 = 18;
-const LABEL_W: u32 = 90;
+/// The font family of every figure.
+pub const FONT: &str = "sans-serif";
 
-/// How to draw a field.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FieldPlot {
-    /// Title printed above the map.
-    pub title: String,
-    /// Logarithmic colour scale over [`LOG_DECADES`] decades below the maximum.
-    pub log: bool,
-    /// Unit shown next to the colour bar.
-    pub unit: String,
+/// One panel of a figure; a figure stacks its panels top to bottom.
+#[derive(Debug, Clone)]
+pub enum Panel<'a> {
+    /// A field over the arena with a colour bar.
+    Field(FieldPanel<'a>),
+    /// A posterior with the robot's trajectory, readings, source and estimate.
+    Belief(belief::BeliefPanel<'a>),
+    /// Box plots of a study.
+    Boxes(boxplot::BoxPanel),
 }
 
-/// Where the map of a rendered field lies in its image, to draw on top of it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MapFrame {
-    left: u32,
-    top: u32,
-    scale: u32,
-    cell: f64,
-    height: u32,
-}
-
-impl MapFrame {
-    /// Pixel of a point in metres (may lie outside the image for points outside the arena).
-    pub fn pixel(&self, x: f64, y: f64) -> (i64, i64) {
-        let s = f64::from(self.scale) / self.cell;
-        (
-            i64::from(self.left) + (x * s).round() as i64,
-            i64::from(self.top + self.height) - (y * s).round() as i64,
-        )
-    }
-}
-
-/// Renders a `[ny, nx]` field with `y` pointing up, obstacles in grey.
-///
-/// # Errors
-/// [`Error::Parameter`] when the field's shape is not the layout's grid or it holds NaN.
-pub fn render_field(field: &Array2<f64>, layout: &Layout, plot: &FieldPlot) -> Result<RgbImage> {
-    render_field_framed(field, layout, plot).map(|(img, _)| img)
-}
-
-/// [`render_field`], also returning where the map lies so that markers can be drawn on it.
-///
-/// # Errors
-/// As [`render_field`].
-pub fn render_field_framed(
-    field: &Array2<f64>,
-    layout: &Layout,
-    plot: &FieldPlot,
-) -> Result<(RgbImage, MapFrame)> {
-    let (ny, nx) = layout.shape();
-    if field.dim() != (ny, nx) {
-        return Err(Error::Parameter(format!(
-            "field shape {:?} does not match the layout grid {:?}",
-            field.dim(),
-            (ny, nx)
-        )));
-    }
-    if field.iter().any(|v| v.is_nan()) {
-        return Err(Error::Parameter("field contains NaN".into()));
-    }
-    let scale = (960 / nx as u32).clamp(2, 16);
-    let (map_w, map_h) = (nx as u32 * scale, ny as u32 * scale);
-    let width = MARGIN * 3 + map_w + BAR_W + LABEL_W;
-    let height = TITLE_H + map_h + MARGIN * 2;
-    let mut img = RgbImage::from_pixel(width, height, WHITE);
-    draw_text(&mut img, MARGIN, 8, &plot.title);
-
-    let vmax = field.iter().copied().fold(0.0_f64, f64::max);
-    let vmin = field.iter().copied().fold(f64::INFINITY, f64::min).min(0.0);
-    let (lo, hi) = if plot.log {
-        let top = if vmax > 0.0 { vmax.log10() } else { 0.0 };
-        (top - LOG_DECADES, top)
-    } else {
-        (vmin, if vmax > vmin { vmax } else { vmin + 1.0 })
-    };
-    let to_unit = |v: f64| -> f64 {
-        let t = if plot.log { v.max(1e-300).log10() } else { v };
-        ((t - lo) / (hi - lo)).clamp(0.0, 1.0)
-    };
-    for j in 0..ny {
-        for i in 0..nx {
-            let colour = if layout.is_solid(j, i) {
-                OBSTACLE
-            } else {
-                viridis(to_unit(field[[j, i]]))
-            };
-            let (x0, y0) = (
-                MARGIN + i as u32 * scale,
-                TITLE_H + (ny - 1 - j) as u32 * scale,
-            );
-            fill(&mut img, x0, y0, scale, scale, colour);
+impl Panel<'_> {
+    fn size(&self) -> (u32, u32) {
+        match self {
+            Self::Field(p) => p.size(),
+            Self::Belief(p) => p.size(),
+            Self::Boxes(p) => p.size(),
         }
     }
-    frame(&mut img, MARGIN - 1, TITLE_H - 1, map_w + 2, map_h + 2);
 
-    let bar_x = MARGIN * 2 + map_w;
-    for row in 0..map_h {
-        let t = 1.0 - f64::from(row) / f64::from(map_h - 1);
-        fill(&mut img, bar_x, TITLE_H + row, BAR_W, 1, viridis(t));
-    }
-    frame(&mut img, bar_x - 1, TITLE_H - 1, BAR_W + 2, map_h + 2);
-    let label = |t: f64| {
-        let v = lo + t * (hi - lo);
-        if plot.log {
-            format!("{:.1e}", 10f64.powf(v))
-        } else {
-            format!("{v:.3e}")
-        }
-    };
-    let text_x = bar_x + BAR_W + 6;
-    draw_text(&mut img, text_x, TITLE_H, &label(1.0));
-    draw_text(&mut img, text_x, TITLE_H + map_h / 2 - 4, &label(0.5));
-    draw_text(&mut img, text_x, TITLE_H + map_h - 8, &label(0.0));
-    if map_h > 48 {
-        draw_text(&mut img, text_x, TITLE_H + map_h / 4 - 4, &plot.unit);
-    }
-    let frame = MapFrame {
-        left: MARGIN,
-        top: TITLE_H,
-        scale,
-        cell: layout.cell(),
-        height: map_h,
-    };
-    Ok((img, frame))
-}
-
-/// Sets a pixel if it lies in the image.
-pub fn put(img: &mut RgbImage, (x, y): (i64, i64), colour: Rgb<u8>) {
-    if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
-        img.put_pixel(x as u32, y as u32, colour);
-    }
-}
-
-/// A filled disc of radius `r` pixels.
-pub fn disc(img: &mut RgbImage, (cx, cy): (i64, i64), r: i64, colour: Rgb<u8>) {
-    for dy in -r..=r {
-        for dx in -r..=r {
-            if dx * dx + dy * dy <= r * r {
-                put(img, (cx + dx, cy + dy), colour);
-            }
+    fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
+        match self {
+            Self::Field(p) => p.draw(area).map(drop),
+            Self::Belief(p) => p.draw(area),
+            Self::Boxes(p) => p.draw(area),
         }
     }
 }
 
-/// Writes an image as PNG, atomically.
+/// Writes a figure atomically: SVG when the path ends in `.svg`, PNG otherwise.
 ///
 /// # Errors
-/// [`Error::Image`] when encoding fails, [`Error::Io`] when the file cannot be written.
-pub fn save_png(img: &RgbImage, path: &Path) -> Result<()> {
-    io::write_atomic(path, |buf| {
-        image::codecs::png::PngEncoder::new(buf)
-            .write_image(
-                img.as_raw(),
-                img.width(),
-                img.height(),
-                image::ExtendedColorType::Rgb8,
-            )
+/// [`Error::Parameter`] when a panel cannot be drawn, [`Error::Image`] when encoding fails,
+/// [`Error::Io`] when the file cannot be written.
+pub fn save_figure(panels: &[Panel<'_>], path: &Path) -> Result<()> {
+    static FONTS: Once = Once::new();
+    FONTS.call_once(|| {
+        // Valid TrueType bytes shipped by `dejavu`; were they not, text would be missing, which
+        // the figure tests would catch.
+        let _ = register_font(FONT, FontStyle::Normal, dejavu::sans::regular());
+    });
+    let w = panels.iter().map(|p| p.size().0).max().unwrap_or(1);
+    let h = panels.iter().map(|p| p.size().1).sum::<u32>().max(1);
+    let svg = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
+    io::write_atomic(path, |out| {
+        if svg {
+            let mut doc = String::new();
+            draw(
+                SVGBackend::with_string(&mut doc, (w, h)).into_drawing_area(),
+                panels,
+            )?;
+            out.extend_from_slice(doc.as_bytes());
+            return Ok(());
+        }
+        let mut rgb = vec![255u8; w as usize * h as usize * 3];
+        draw(
+            BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area(),
+            panels,
+        )?;
+        image::codecs::png::PngEncoder::new(out)
+            .write_image(&rgb, w, h, image::ExtendedColorType::Rgb8)
             .map_err(|e| Error::Image {
                 path: path.to_path_buf(),
                 reason: e.to_string(),
@@ -189,57 +95,38 @@ pub fn save_png(img: &RgbImage, path: &Path) -> Result<()> {
     })
 }
 
-/// The viridis colour of `t` in `[0, 1]`.
-pub fn viridis(t: f64) -> Rgb<u8> {
-    let c = colorous::VIRIDIS.eval_continuous(t);
-    Rgb([c.r, c.g, c.b])
+/// Draws panels top to bottom on white.
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, panels: &[Panel<'_>]) -> Result<()> {
+    root.fill(&WHITE).plot()?;
+    let mut rest = root;
+    for panel in panels {
+        let (top, bottom) = rest.split_vertically(panel.size().1);
+        panel.draw(&top)?;
+        rest = bottom;
+    }
+    rest.present().plot()
 }
 
-fn fill(img: &mut RgbImage, x0: u32, y0: u32, w: u32, h: u32, colour: Rgb<u8>) {
-    for y in y0..(y0 + h).min(img.height()) {
-        for x in x0..(x0 + w).min(img.width()) {
-            img.put_pixel(x, y, colour);
-        }
+/// Plotters' drawing errors as ours.
+trait Plot<T> {
+    fn plot(self) -> Result<T>;
+}
+
+impl<T, E: std::error::Error + Send + Sync> Plot<T>
+    for std::result::Result<T, DrawingAreaErrorKind<E>>
+{
+    fn plot(self) -> Result<T> {
+        self.map_err(|e| Error::Parameter(format!("cannot draw the figure: {e}")))
     }
 }
 
-fn frame(img: &mut RgbImage, x0: u32, y0: u32, w: u32, h: u32) {
-    fill(img, x0, y0, w, 1, BLACK);
-    fill(img, x0, y0 + h - 1, w, 1, BLACK);
-    fill(img, x0, y0, 1, h, BLACK);
-    fill(img, x0 + w - 1, y0, 1, h, BLACK);
+/// The colour of `t` in `[0, 1]` on a colour map (for example `colorous::VIRIDIS`).
+pub fn colour(map: &colorous::Gradient, t: f64) -> RGBColor {
+    let c = map.eval_continuous(t.clamp(0.0, 1.0));
+    RGBColor(c.r, c.g, c.b)
 }
 
-/// Draws text with the public-domain 8x8 bitmap font (no system fonts needed).
-pub fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
-    for (k, ch) in text.chars().enumerate() {
-        let Some(glyph) = font8x8::BASIC_FONTS.get(ch) else {
-            continue;
-        };
-        for (row, bits) in glyph.iter().enumerate() {
-            for col in 0..8 {
-                if bits & (1 << col) != 0 {
-                    let (x, y) = (x0 + k as u32 * 8 + col, y0 + row as u32);
-                    if x < img.width() && y < img.height() {
-                        img.put_pixel(x, y, BLACK);
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Stacks images top to bottom on a white background (for side-by-side comparisons).
-pub fn stack_vertical(images: &[RgbImage]) -> RgbImage {
-    let width = images.iter().map(RgbImage::width).max().unwrap_or(1);
-    let height = images.iter().map(RgbImage::height).sum::<u32>().max(1);
-    let mut out = RgbImage::from_pixel(width, height, WHITE);
-    let mut top = 0;
-    for img in images {
-        for (x, y, p) in img.enumerate_pixels() {
-            out.put_pixel(x, top + y, *p);
-        }
-        top += img.height();
-    }
-    out
+/// Black text of `size` pixels.
+fn text(size: u32) -> TextStyle<'static> {
+    (FONT, size).into_font().color(&BLACK)
 }

@@ -72,6 +72,19 @@ pub fn read_log(path: &Path) -> Result<Vec<Sample>> {
     Ok(samples)
 }
 
+/// The estimator's state after a step of a replay.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayStep {
+    /// Readings taken in so far.
+    pub samples: usize,
+    /// Posterior entropy (nats).
+    pub entropy: f64,
+    /// MAP estimate (m).
+    pub estimate: [f64; 2],
+    /// Posterior of every candidate.
+    pub posterior: Vec<f64>,
+}
+
 /// Runs the estimator over all readings at once, over one bank or several (see
 /// [`Estimator::with_banks`]), with the uniform prior of a simulated run (obstacles inflated by
 /// `robot_radius_m`, the 0.25 m boundary band excluded).
@@ -84,6 +97,24 @@ pub fn replay(
     robot_radius_m: f64,
     samples: &[Sample],
 ) -> Result<Estimator> {
+    replay_in_steps(samplers, params, robot_radius_m, samples, 1).map(|(est, _)| est)
+}
+
+/// [`replay`], taking the readings in `steps` chunks of (nearly) equal count, as a robot would
+/// have sent them, and keeping the state after each chunk (for the run viewer).
+///
+/// # Errors
+/// As [`replay`]; [`Error::Parameter`] for zero steps.
+pub fn replay_in_steps(
+    samplers: Vec<Arc<FieldSampler>>,
+    params: SteParams,
+    robot_radius_m: f64,
+    samples: &[Sample],
+    steps: usize,
+) -> Result<(Estimator, Vec<ReplayStep>)> {
+    if steps == 0 {
+        return Err(Error::Parameter("a replay needs at least one step".into()));
+    }
     let Some(first) = samplers.first() else {
         return Err(Error::Parameter("no plume bank".into()));
     };
@@ -94,6 +125,16 @@ pub fn replay(
         PRIOR_BAND_M,
     )?;
     let mut est = Estimator::with_banks(samplers, &support, params)?;
-    est.update(samples)?;
-    Ok(est)
+    let chunk = samples.len().div_ceil(steps).max(1);
+    let mut out = Vec::new();
+    for (k, part) in samples.chunks(chunk).enumerate() {
+        est.update(part)?;
+        out.push(ReplayStep {
+            samples: (k * chunk + part.len()).min(samples.len()),
+            entropy: est.entropy(),
+            estimate: est.estimate(),
+            posterior: est.posterior().to_vec(),
+        });
+    }
+    Ok((est, out))
 }
