@@ -1,4 +1,5 @@
-//! Small descriptive statistics shared by the STE, its studies and the reports.
+//! Small descriptive statistics shared by the STE, its studies and the reports: median, mean
+//! and spread, and the box of a box plot.
 
 /// Median of a slice (NaN-free); NaN for an empty slice.
 pub fn median(v: &[f64]) -> f64 {
@@ -20,4 +21,39 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
     let mean = v.iter().sum::<f64>() / n;
     let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
     (mean, var.sqrt())
+}
+
+/// A box: whiskers, quartiles, median, and the values beyond the whiskers.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoxStats {
+    /// `[low whisker, q1, median, q3, high whisker]`: quartiles by linear interpolation (the
+    /// "type 7" rule of R and numpy), whiskers at the furthest values within 1.5 IQR.
+    pub five: [f64; 5],
+    /// Values beyond the whiskers.
+    pub outliers: Vec<f64>,
+}
+
+impl BoxStats {
+    /// The box of the finite values; `None` when there are none.
+    pub fn of(values: &[f64]) -> Option<Self> {
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        let q = |q: f64| {
+            let pos = q * (v.len() - 1) as f64;
+            let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+            v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
+        };
+        let (q1, median, q3) = (q(0.25), q(0.5), q(0.75));
+        let reach = 1.5 * (q3 - q1);
+        let low = *v.iter().find(|&&x| x >= q1 - reach)?;
+        let high = *v.iter().rev().find(|&&x| x <= q3 + reach)?;
+        let outliers = v.iter().copied().filter(|&x| x < low || x > high).collect();
+        Some(Self {
+            five: [low, q1, median, q3, high],
+            outliers,
+        })
+    }
 }

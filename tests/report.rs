@@ -2,8 +2,9 @@
 //! colour bar is labelled, SVG carries the same text, box statistics follow the type-7 rule.
 
 use ndarray::Array2;
-use plumenet::report::boxplot::{BoxGroup, BoxPanel, BoxStats, group_values};
+use plumenet::report::boxplot::{BoxGroup, BoxPanel, group_values};
 use plumenet::report::{FieldPanel, FieldPlot, Panel, colour, save_figure};
+use plumenet::stats::BoxStats;
 
 use crate::common::wind_tunnel;
 

@@ -10,7 +10,7 @@ use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
-use plumenet::report::belief::{BeliefPanel, BeliefPlot, write_episode_pictures};
+use plumenet::report::belief::{BeliefPlot, belief_panel, write_episode_pictures};
 use plumenet::report::boxplot::{BoxPanel, group_values};
 
 use plumenet::report::{Panel, save_figure};
@@ -540,7 +540,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             estimate[0],
             estimate[1]
         );
-        let panel = BeliefPanel::new(
+        let panel = belief_panel(
             &world.layout,
             BeliefPlot {
                 title: &title,
@@ -554,7 +554,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
                 estimate,
             },
         )?;
-        save_figure(&[Panel::Belief(panel)], path)?;
+        save_figure(&[Panel::Field(panel)], path)?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &a.html {

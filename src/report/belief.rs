@@ -5,13 +5,13 @@
 use std::path::{Path, PathBuf};
 
 use colorous::PLASMA;
-use ndarray::Array2;
-use plotters::coord::Shift;
+use ndarray::{Array2, s};
+use plotters::coord::CoordTranslate;
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
-use crate::report::{FieldPanel, FieldPlot, Panel, Plot, colour, save_figure, text};
+use crate::report::{FieldPanel, FieldPlot, Panel, Plot, colour, legend, save_figure};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::run::Episode;
 
@@ -41,99 +41,81 @@ pub struct BeliefPlot<'a> {
     pub estimate: [f64; 2],
 }
 
-/// A belief panel: the posterior's [`FieldPanel`] with the run drawn on top.
-#[derive(Debug, Clone)]
-pub struct BeliefPanel<'a> {
-    map: FieldPanel<'a>,
-    plot: BeliefPlot<'a>,
+/// The panel of one iteration: the posterior as a [`FieldPanel`] with the run on top.
+///
+/// # Errors
+/// [`Error::Parameter`] when the posterior holds NaN or is not one value per candidate.
+pub fn belief_panel<'a>(layout: &'a Layout, plot: BeliefPlot<'a>) -> Result<FieldPanel<'a>> {
+    if plot.posterior.len() != plot.candidates.len() {
+        return Err(Error::Parameter(format!(
+            "{} posterior values for {} candidates",
+            plot.posterior.len(),
+            plot.candidates.len()
+        )));
+    }
+    let (ny, nx) = layout.shape();
+    let mut field = Array2::zeros((ny, nx));
+    // Cell k (centre (k + 0.5) cell) lies in the square around c when
+    // |(k + 0.5) cell - c| < spacing / 2.
+    let span = |c: f64, n: usize| {
+        let (lo, hi) = ((c - 0.5 * plot.spacing_m), (c + 0.5 * plot.spacing_m));
+        let first = ((lo / layout.cell() - 0.5).floor() + 1.0).max(0.0) as usize;
+        first..((hi / layout.cell() - 0.5).ceil().max(0.0) as usize).min(n)
+    };
+    for (&[x, y], &p) in plot.candidates.iter().zip(plot.posterior) {
+        field.slice_mut(s![span(y, ny), span(x, nx)]).fill(p);
+    }
+    let map = FieldPlot {
+        title: plot.title.to_string(),
+        log: false,
+        unit: "posterior probability".into(),
+    };
+    let mut panel = FieldPanel::new(field, layout, map)?;
+    panel.run = Some(Box::new(plot));
+    Ok(panel)
 }
 
-impl<'a> BeliefPanel<'a> {
-    /// The panel of one iteration.
-    ///
-    /// # Errors
-    /// [`Error::Parameter`] when the posterior holds NaN or is not one value per candidate.
-    pub fn new(layout: &'a Layout, plot: BeliefPlot<'a>) -> Result<Self> {
-        if plot.posterior.len() != plot.candidates.len() {
-            return Err(Error::Parameter(format!(
-                "{} posterior values for {} candidates",
-                plot.posterior.len(),
-                plot.candidates.len()
-            )));
-        }
-        let (ny, nx) = layout.shape();
-        let mut field = Array2::zeros((ny, nx));
-        // Cell k (centre (k + 0.5) cell) lies in the square around c when
-        // |(k + 0.5) cell - c| < spacing / 2.
-        let span = |c: f64, n: usize| {
-            let (lo, hi) = ((c - 0.5 * plot.spacing_m), (c + 0.5 * plot.spacing_m));
-            let first = ((lo / layout.cell() - 0.5).floor() + 1.0).max(0.0) as usize;
-            first..((hi / layout.cell() - 0.5).ceil().max(0.0) as usize).min(n)
-        };
-        for (&[x, y], &p) in plot.candidates.iter().zip(plot.posterior) {
-            field
-                .slice_mut(ndarray::s![span(y, ny), span(x, nx)])
-                .fill(p);
-        }
-        let map = FieldPlot {
-            title: plot.title.to_string(),
-            log: false,
-            unit: "posterior probability".into(),
-        };
-        Ok(Self {
-            map: FieldPanel::new(field, layout, map)?,
-            plot,
-        })
-    }
-
-    pub(crate) fn size(&self) -> (u32, u32) {
-        self.map.size()
-    }
-
-    pub(crate) fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
-        let mut chart = self.map.draw(area)?;
-        let p = &self.plot;
-        let path = p.trajectory.iter().map(|&[_, x, y]| (x, y));
-        chart
-            .draw_series(LineSeries::new(path, TRAJECTORY.stroke_width(2)))
-            .plot()?
-            .label("trajectory")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], TRAJECTORY.stroke_width(3)));
-        let dot = |(x, y), e: f32| Circle::new((x, y), 3, colour(&PLASMA, f64::from(e)).filled());
-        chart
-            .draw_series(
-                p.samples
-                    .iter()
-                    .zip(p.edf)
-                    .map(|(&[x, y], &e)| dot((x, y), e)),
-            )
-            .plot()?
-            .label("readings (colour: rank, low to high)")
-            .legend(|(x, y)| Circle::new((x + 8, y), 4, colour(&PLASMA, 0.8).filled()));
-        if let Some([x, y]) = p.source {
-            let marks = [(8, BLACK), (6, SOURCE)].map(|(r, c)| Circle::new((x, y), r, c.filled()));
-            chart
-                .draw_series(marks)
-                .plot()?
-                .label("true source")
-                .legend(|(x, y)| Circle::new((x + 8, y), 5, SOURCE.filled()));
-        }
-        let [x, y] = p.estimate;
-        let marks = [(BLACK, 4), (WHITE, 2)].map(|(c, w)| Cross::new((x, y), 8, c.stroke_width(w)));
+/// Draws a run on a map's chart (metres), with its legend.
+pub(crate) fn draw_run<'a, DB: DrawingBackend + 'a, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    p: &BeliefPlot<'_>,
+) -> Result<()>
+where
+    CT: CoordTranslate<From = (f64, f64)>,
+{
+    let path = p.trajectory.iter().map(|&[_, x, y]| (x, y));
+    chart
+        .draw_series(LineSeries::new(path, TRAJECTORY.stroke_width(2)))
+        .plot()?
+        .label("trajectory")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], TRAJECTORY.stroke_width(3)));
+    let dot = |(x, y), e: f32| Circle::new((x, y), 3, colour(&PLASMA, f64::from(e)).filled());
+    chart
+        .draw_series(
+            p.samples
+                .iter()
+                .zip(p.edf)
+                .map(|(&[x, y], &e)| dot((x, y), e)),
+        )
+        .plot()?
+        .label("readings (colour: rank, low to high)")
+        .legend(|(x, y)| Circle::new((x + 8, y), 4, colour(&PLASMA, 0.8).filled()));
+    if let Some([x, y]) = p.source {
+        let marks = [(8, BLACK), (6, SOURCE)].map(|(r, c)| Circle::new((x, y), r, c.filled()));
         chart
             .draw_series(marks)
             .plot()?
-            .label("estimate")
-            .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(text(12))
-            .draw()
-            .plot()
+            .label("true source")
+            .legend(|(x, y)| Circle::new((x + 8, y), 5, SOURCE.filled()));
     }
+    let [x, y] = p.estimate;
+    let marks = [(BLACK, 4), (WHITE, 2)].map(|(c, w)| Cross::new((x, y), 8, c.stroke_width(w)));
+    chart
+        .draw_series(marks)
+        .plot()?
+        .label("estimate")
+        .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
+    legend(chart, SeriesLabelPosition::UpperRight)
 }
 
 /// Writes one picture per iteration of a run (`iter-01.png`, ...) into `dir` and returns their
@@ -184,7 +166,7 @@ pub fn write_episode_pictures(
             estimate: rec.estimate,
         };
         let path = dir.join(format!("iter-{:02}.png", rec.iteration));
-        save_figure(&[Panel::Belief(BeliefPanel::new(layout, plot)?)], &path)?;
+        save_figure(&[Panel::Field(belief_panel(layout, plot)?)], &path)?;
         out.push(path);
     }
     Ok(out)

@@ -7,7 +7,8 @@ use plotters::prelude::*;
 
 use crate::error::Result;
 use crate::report::field::tick_label;
-use crate::report::{Plot, text};
+use crate::report::{Plot, legend, text};
+use crate::stats::BoxStats;
 
 /// One group of boxes (a feature), each box a named sample (a sensor).
 #[derive(Debug, Clone, PartialEq)]
@@ -42,41 +43,6 @@ pub fn group_values(values: &[(String, String, f64)]) -> Vec<BoxGroup> {
     groups
 }
 
-/// A box: whiskers, quartiles, median, and the values beyond the whiskers.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BoxStats {
-    /// `[low whisker, q1, median, q3, high whisker]`: quartiles by linear interpolation (the
-    /// "type 7" rule of R and numpy), whiskers at the furthest values within 1.5 IQR.
-    pub five: [f64; 5],
-    /// Values beyond the whiskers.
-    pub outliers: Vec<f64>,
-}
-
-impl BoxStats {
-    /// The box of the finite values; `None` when there are none.
-    pub fn of(values: &[f64]) -> Option<Self> {
-        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
-        if v.is_empty() {
-            return None;
-        }
-        v.sort_by(f64::total_cmp);
-        let q = |q: f64| {
-            let pos = q * (v.len() - 1) as f64;
-            let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-            v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
-        };
-        let (q1, median, q3) = (q(0.25), q(0.5), q(0.75));
-        let reach = 1.5 * (q3 - q1);
-        let low = *v.iter().find(|&&x| x >= q1 - reach)?;
-        let high = *v.iter().rev().find(|&&x| x <= q3 + reach)?;
-        let outliers = v.iter().copied().filter(|&x| x < low || x > high).collect();
-        Some(Self {
-            five: [low, q1, median, q3, high],
-            outliers,
-        })
-    }
-}
-
 /// One panel of box plots: a title, a y axis from zero, one group per label on the x axis and
 /// a legend of the series.
 #[derive(Debug, Clone, PartialEq)]
@@ -90,10 +56,6 @@ pub struct BoxPanel {
 }
 
 impl BoxPanel {
-    pub(crate) fn size(&self) -> (u32, u32) {
-        (960, 340)
-    }
-
     pub(crate) fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
         let all = self
             .groups
@@ -130,7 +92,7 @@ impl BoxPanel {
             .axis_desc_style(text(14))
             .draw()
             .plot()?;
-        let mut legend: Vec<&str> = Vec::new();
+        let mut series: Vec<&str> = Vec::new();
         for (g, group) in self.groups.iter().enumerate() {
             let nb = group.boxes.len().max(1) as f64;
             let w = (0.7 / nb).min(0.2);
@@ -139,13 +101,13 @@ impl BoxPanel {
                     continue;
                 };
                 let [low, q1, median, q3, high] = s.five;
-                let k = legend
+                let k = series
                     .iter()
                     .position(|n| n == name)
-                    .unwrap_or(legend.len());
-                let new = k == legend.len();
+                    .unwrap_or(series.len());
+                let new = k == series.len();
                 if new {
-                    legend.push(name);
+                    series.push(name);
                 }
                 let c = colorous::TABLEAU10[k % colorous::TABLEAU10.len()];
                 let fill = RGBColor(c.r, c.g, c.b);
@@ -174,13 +136,6 @@ impl BoxPanel {
                 chart.draw_series(dots).plot()?;
             }
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(text(12))
-            .draw()
-            .plot()
+        legend(&mut chart, SeriesLabelPosition::UpperLeft)
     }
 }

@@ -5,11 +5,11 @@
 use colorous::VIRIDIS;
 use ndarray::Array2;
 use plotters::coord::Shift;
-use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
+use crate::report::belief::{BeliefPlot, draw_run};
 use crate::report::{Plot, colour, text};
 
 /// Decades shown below the maximum on a log scale.
@@ -34,15 +34,14 @@ pub struct FieldPlot {
     pub unit: String,
 }
 
-/// A map's chart: metres on both axes, for drawing on top of the field.
-pub type MapChart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
-
 /// A field panel (see the module's documentation).
 #[derive(Debug, Clone)]
 pub struct FieldPanel<'a> {
     field: Array2<f64>,
     layout: &'a Layout,
     plot: FieldPlot,
+    /// A run drawn on top (see [`crate::report::belief`]).
+    pub(crate) run: Option<Box<BeliefPlot<'a>>>,
     /// Colour scale bounds (of log10 of the values on a log scale).
     lo: f64,
     hi: f64,
@@ -75,6 +74,7 @@ impl<'a> FieldPanel<'a> {
             field,
             layout,
             plot,
+            run: None,
             lo,
             hi,
         })
@@ -92,21 +92,7 @@ impl<'a> FieldPanel<'a> {
         (w, TITLE_H + 2 * MARGIN + ny as u32 * s + X_LABEL)
     }
 
-    /// Where `v` lies on the colour scale, in `[0, 1]`.
-    fn unit(&self, v: f64) -> f64 {
-        let t = if self.plot.log {
-            v.max(1e-300).log10()
-        } else {
-            v
-        };
-        (t - self.lo) / (self.hi - self.lo)
-    }
-
-    /// Draws the panel; returns the map's chart.
-    pub(crate) fn draw<'b, DB: DrawingBackend>(
-        &self,
-        area: &'b DrawingArea<DB, Shift>,
-    ) -> Result<MapChart<'b, DB>> {
+    pub(crate) fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
         let (title, body) = area.split_vertically(TITLE_H);
         let at = ((MARGIN + Y_LABEL) as i32, 8);
         title.draw_text(&self.plot.title, &text(17), at).plot()?;
@@ -136,18 +122,26 @@ impl<'a> FieldPanel<'a> {
         chart
             .draw_series(cells.map(|(j, i)| {
                 let (x, y) = self.layout.cell_centre(j, i);
+                let v = self.field[[j, i]];
+                let t = if self.plot.log {
+                    v.max(1e-300).log10()
+                } else {
+                    v
+                };
                 let c = if self.layout.is_solid(j, i) {
                     OBSTACLE
                 } else {
-                    colour(&VIRIDIS, self.unit(self.field[[j, i]]))
+                    colour(&VIRIDIS, (t - self.lo) / (self.hi - self.lo))
                 };
                 Rectangle::new([(x - half, y - half), (x + half, y + half)], c.filled())
             }))
             .plot()?;
         let frame = Rectangle::new([(0.0, 0.0), (w, h)], BLACK.stroke_width(1));
         chart.plotting_area().draw(&frame).plot()?;
-        self.draw_colour_bar(&bar_area)?;
-        Ok(chart)
+        if let Some(run) = &self.run {
+            draw_run(&mut chart, run)?;
+        }
+        self.draw_colour_bar(&bar_area)
     }
 
     /// The colour bar: a linear axis over the scale (log10 of the values on a log scale, whole
@@ -183,20 +177,11 @@ impl<'a> FieldPanel<'a> {
     }
 }
 
-/// A tick label: plain from 10^-3 to 10^4, scientific with one decimal otherwise.
+/// A tick label: up to four significant digits from 10^-3 to 10^4, scientific otherwise.
 pub(crate) fn tick_label(v: f64) -> String {
-    if v == 0.0 {
-        return "0".into();
-    }
-    if !(1e-3..1e4).contains(&v.abs()) {
+    if v != 0.0 && !(1e-3..1e4).contains(&v.abs()) {
         return format!("{v:.1e}").replace(".0e", "e");
     }
-    // Four significant digits, trailing zeros after the point dropped.
-    let decimals = (3.0 - v.abs().log10().floor()).max(0.0) as usize;
-    let s = format!("{v:.decimals$}");
-    if s.contains('.') {
-        s.trim_end_matches('0').trim_end_matches('.').to_string()
-    } else {
-        s
-    }
+    let m = 10f64.powi(3 - v.abs().log10().floor().max(-4.0) as i32);
+    format!("{}", (v * m).round() / m)
 }

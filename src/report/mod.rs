@@ -9,7 +9,7 @@ use std::path::Path;
 use std::sync::Once;
 
 use image::ImageEncoder;
-use plotters::coord::Shift;
+use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -28,10 +28,8 @@ pub const FONT: &str = "sans-serif";
 /// One panel of a figure; a figure stacks its panels top to bottom.
 #[derive(Debug, Clone)]
 pub enum Panel<'a> {
-    /// A field over the arena with a colour bar.
+    /// A field over the arena with a colour bar (and perhaps a run on top, [`belief`]).
     Field(FieldPanel<'a>),
-    /// A posterior with the robot's trajectory, readings, source and estimate.
-    Belief(belief::BeliefPanel<'a>),
     /// Box plots of a study.
     Boxes(boxplot::BoxPanel),
 }
@@ -40,15 +38,13 @@ impl Panel<'_> {
     fn size(&self) -> (u32, u32) {
         match self {
             Self::Field(p) => p.size(),
-            Self::Belief(p) => p.size(),
-            Self::Boxes(p) => p.size(),
+            Self::Boxes(_) => (960, 340),
         }
     }
 
     fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
         match self {
-            Self::Field(p) => p.draw(area).map(drop),
-            Self::Belief(p) => p.draw(area),
+            Self::Field(p) => p.draw(area),
             Self::Boxes(p) => p.draw(area),
         }
     }
@@ -124,6 +120,21 @@ impl<T, E: std::error::Error + Send + Sync> Plot<T>
 pub fn colour(map: &colorous::Gradient, t: f64) -> RGBColor {
     let c = map.eval_continuous(t.clamp(0.0, 1.0));
     RGBColor(c.r, c.g, c.b)
+}
+
+/// Draws the legend of a chart's labelled series at `position`.
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(text(12))
+        .draw()
+        .plot()
 }
 
 /// Black text of `size` pixels.
