@@ -190,9 +190,16 @@ fn plumenet_bank_turns_with_the_layout() {
         let expected = frame.cells_from_canonical(base_bank.index_axis(ndarray::Axis(0), n));
         assert_eq!(field, expected);
     }
-    // A grid the model does not know is still refused, naming both grids.
+    // A cell size the model was not trained on is refused, naming the trained one; the
+    // one-arena model from before any-room models refuses every other grid, naming both.
     let small = turned(&west(), WindFrom::South);
     let err = model
+        .predict_many(&small, &[[1.0, 1.0]])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("0.125"), "{err}");
+    let legacy = Surrogate::load(&repo_path("models/arena-v1")).unwrap();
+    let err = legacy
         .predict_many(&small, &[[1.0, 1.0]])
         .unwrap_err()
         .to_string();

@@ -756,14 +756,14 @@ fn a_run_can_start_from_a_trained_model() {
     assert!(err.contains("not the model to start from"), "{err}");
 }
 
-/// The any-room model in `models/rooms` (trained on 1000 random rooms) runs on a room of a size
+/// The shipped any-room model (`models/default`, trained on 1000 random rooms) runs on a room of a size
 /// it never saw, close to the physics solver there, and refuses a room longer than any it
 /// trained on, naming the range.
 #[test]
 fn the_any_room_model_predicts_an_unseen_room_and_refuses_a_too_long_one() {
     use plumenet::physics::transport::Transport;
     use plumenet::physics::wind::WindField;
-    let model = Surrogate::load(&crate::common::repo_path("models/rooms")).unwrap();
+    let model = Surrogate::load(&crate::common::repo_path("models/default")).unwrap();
     let office = Layout::load(&crate::common::repo_path(
         "data/layouts/rooms/office-9.25x7.5.json",
     ))
