@@ -397,6 +397,13 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                 wk / total
             );
         }
+        // The goodness of fit is the best candidate's mean standardised squared residual.
+        let fit = top / (-0.5 * n / (n + 1.0)) / n;
+        let ours = est.fit().unwrap();
+        assert!(
+            (ours - fit).abs() < 1e-6 * fit.max(1.0),
+            "{feature:?}: fit {ours} vs {fit}"
+        );
     }
 }
 
@@ -1031,4 +1038,49 @@ fn a_windowed_session_keeps_the_last_readings() {
     {
         assert!((a - b).abs() < 1e-12, "{a} vs {b}");
     }
+}
+
+/// Readings that one candidate's plume explains fit far better than readings no candidate
+/// explains: the same plume blowing the wrong way (mirrored along the wind).
+#[test]
+fn goodness_of_fit_tells_a_plume_from_one_no_candidate_explains() {
+    let w = world();
+    let sup = support();
+    let nearest = |p: [f64; 2]| {
+        (0..w.sampler.len())
+            .filter(|&k| sup[k])
+            .min_by(|&a, &b| {
+                let d = |k: usize| {
+                    let [x, y] = w.sampler.candidates()[k];
+                    (x - p[0]).hypot(y - p[1])
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap()
+    };
+    let (k0, k1) = (nearest([4.5, 2.5]), nearest([13.5, 2.5]));
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut row = vec![0.0f32; w.sampler.len()];
+    let (mut plume, mut mirrored) = (Vec::new(), Vec::new());
+    while plume.len() < 400 {
+        use rand::RngExt;
+        let (x, y) = (rng.random_range(0.5..17.5), rng.random_range(0.3..3.7));
+        if !w.layout.is_free(x, y) || !w.layout.is_free(18.0 - x, y) {
+            continue;
+        }
+        let t = plume.len() as f64 * 0.1;
+        w.sampler.gather(x, y, 100.0, &mut row);
+        let value = f64::from(row[k0]);
+        plume.push(Sample { t, x, y, value });
+        w.sampler.gather(18.0 - x, y, 100.0, &mut row);
+        let value = f64::from(row[k1]);
+        mirrored.push(Sample { t, x, y, value });
+    }
+    let params = SteParams::for_feature(Feature::Rank);
+    let fresh = Estimator::new(Arc::clone(&w.sampler), &support(), params).unwrap();
+    assert_eq!(fresh.fit(), None);
+    let good = estimate_with(params, &plume).fit().unwrap();
+    let bad = estimate_with(params, &mirrored).fit().unwrap();
+    assert!(good < 0.05, "plume fit {good}");
+    assert!(bad > 5.0 * good, "mirrored fit {bad} vs plume {good}");
 }

@@ -524,13 +524,14 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
     let baselines = Baselines::new(&world.layout, &samples, source)?;
     println!(
-        "{} readings, {}: estimate ({:.2}, {:.2}){}, entropy {:.2} nats",
+        "{} readings, {}: estimate ({:.2}, {:.2}){}, entropy {:.2} nats, fit {:.3}",
         samples.len(),
         feature.name(),
         estimate[0],
         estimate[1],
         error_m.map_or(String::new(), |e| format!(", error {e:.2} m")),
-        est.entropy()
+        est.entropy(),
+        est.fit().unwrap_or(f64::NAN)
     );
     print_baselines(&baselines);
     if let Some(path) = &a.png {
@@ -585,7 +586,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     if let Some(path) = &a.json {
         let posterior = plumenet::ste::protocol::posterior_json(&est);
         let mut report = json!({
-            "estimate": estimate, "entropy": est.entropy(), "samples": samples.len(),
+            "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
             "baselines": baselines, "wind_scales": wind_scales, "posterior": posterior,
         });

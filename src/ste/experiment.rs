@@ -76,6 +76,8 @@ pub struct RunRow {
     pub distance_m: f64,
     /// Wall-clock time (s).
     pub wall_time_s: f64,
+    /// Goodness of fit at the end ([`crate::ste::posterior::Estimator::fit`]).
+    pub fit: f64,
 }
 
 /// Mean and standard deviation of error and iterations of one layout, plume model, reality,
@@ -175,6 +177,7 @@ struct Outcome {
     samples: usize,
     distance_m: f64,
     wall_time_s: f64,
+    fit: f64,
 }
 
 /// Runs one run of a study at `source` with the run seed `seed`.
@@ -204,6 +207,7 @@ fn run_one(
                 samples: ep.samples.len(),
                 distance_m,
                 wall_time_s: ep.wall_time_s,
+                fit: ep.history.last().and_then(|h| h.fit).unwrap_or(f64::NAN),
             })
         }
         Paths::Survey(path) => {
@@ -226,6 +230,7 @@ fn run_one(
                 samples: samples.len(),
                 distance_m: path_length(path),
                 wall_time_s: clock.elapsed().as_secs_f64(),
+                fit: est.fit().unwrap_or(f64::NAN),
             })
         }
     }
@@ -278,6 +283,7 @@ pub fn run_study(
                 samples: out.samples,
                 distance_m: out.distance_m,
                 wall_time_s: out.wall_time_s,
+                fit: out.fit,
             })
         })
         .collect()

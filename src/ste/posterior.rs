@@ -250,6 +250,8 @@ pub struct Estimator {
     positions: Vec<[f64; 2]>,
     times: Vec<f64>,
     posterior: Vec<f64>,
+    /// Goodness of fit of the most probable (bank, candidate); see [`Estimator::fit`].
+    fit: Option<f64>,
     lag_state: Vec<f32>,
     last_time: Option<f64>,
 }
@@ -315,6 +317,7 @@ impl Estimator {
             positions: Vec::new(),
             times: Vec::new(),
             posterior,
+            fit: None,
             lag_state: vec![0.0; banks * n],
             last_time: None,
         })
@@ -462,6 +465,8 @@ impl Estimator {
             .chunks(positions)
             .flat_map(|bank| self.log_prior.iter().zip(bank).map(|(a, b)| a + b))
             .collect();
+        let best = argmax(&log_post);
+        self.fit = Some(log_lik[best] / factor / n);
         let joint = normalise(&log_post);
         self.posterior = (0..positions)
             .map(|j| joint.iter().skip(j).step_by(positions).sum())
@@ -493,6 +498,14 @@ impl Estimator {
             }
             self.last_time = Some(s.t);
         }
+    }
+
+    /// Goodness of fit: the mean squared standardised residual per reading,
+    /// `sum_i (e_i - m_i)^2 / sigma_i^2 / n`, of the most probable (bank, candidate). About 1
+    /// or below when that candidate's predicted features explain the measured ones within the
+    /// sigmas; well above 1 when no candidate does. `None` before the first reading.
+    pub fn fit(&self) -> Option<f64> {
+        self.fit
     }
 
     /// Shannon entropy of the posterior (nats).

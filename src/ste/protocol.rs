@@ -7,8 +7,8 @@
 //! - `hello`: `protocol`, `layout`, `model`, `feature`, `candidates`;
 //! - `readings` with `"readings": [{"t", "x", "y", "value"}, ...]`: `accepted` (the count so far);
 //! - `iterate`, optionally with `"position": [x, y]` (default: the last reading's): `iteration`,
-//!   `readings`, `estimate`, `entropy`, `credible_region`, `converged`, `done`, `goal` and
-//!   `path` (see [`Iteration`](crate::ste::session::Iteration));
+//!   `readings`, `estimate`, `entropy`, `fit`, `credible_region`, `converged`, `done`, `goal`
+//!   and `path` (see [`Iteration`](crate::ste::session::Iteration));
 //! - `belief`: `estimate` and `posterior` (`x`, `y`, `p` per candidate) as of the last
 //!   iteration, as `replay --json` writes them;
 //! - `reset`: back to the prior, every reading forgotten.

@@ -231,6 +231,8 @@ pub struct IterationRecord {
     pub samples: usize,
     /// Posterior entropy after the update (nats).
     pub entropy: f64,
+    /// Goodness of fit after the update ([`crate::ste::posterior::Estimator::fit`]).
+    pub fit: Option<f64>,
     /// MAP estimate after the update.
     pub estimate: [f64; 2],
     /// Posterior of every candidate after the update (kept only when asked for pictures).
@@ -515,6 +517,7 @@ pub fn run_episode(
                 path_m: step.path_m,
                 samples: step.iteration.readings,
                 entropy: step.iteration.entropy,
+                fit: step.iteration.fit,
                 estimate: step.iteration.estimate,
                 posterior: keep_posteriors.then(|| session.estimator().posterior().to_vec()),
                 trajectory_len: step.trajectory_len,

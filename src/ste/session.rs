@@ -55,6 +55,9 @@ pub struct Iteration {
     pub estimate: [f64; 2],
     /// Posterior entropy (nats).
     pub entropy: f64,
+    /// Goodness of fit of the most probable candidate ([`Estimator::fit`]): about 1 or below
+    /// when it explains the readings; `None` before the first reading.
+    pub fit: Option<f64>,
     /// The candidates of the smallest set holding 90% of the posterior, most probable first.
     pub credible_region: Vec<[f64; 2]>,
     /// Whether the termination rule holds.
@@ -261,6 +264,7 @@ impl Session {
             readings: self.accepted,
             estimate: self.est.estimate(),
             entropy: self.est.entropy(),
+            fit: self.est.fit(),
             credible_region: self
                 .est
                 .credible_set(CREDIBLE_MASS)
