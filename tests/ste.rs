@@ -1081,6 +1081,7 @@ fn goodness_of_fit_tells_a_plume_from_one_no_candidate_explains() {
     assert_eq!(fresh.fit(), None);
     let good = estimate_with(params, &plume).fit().unwrap();
     let bad = estimate_with(params, &mirrored).fit().unwrap();
+    eprintln!("fit: plume {good:.4}, mirrored {bad:.4}");
     assert!(good < 0.05, "plume fit {good}");
     assert!(bad > 5.0 * good, "mirrored fit {bad} vs plume {good}");
 }
