@@ -49,6 +49,10 @@ pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut Vec<u8>) -> Result<()>) 
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    if let Some(file) = dir.ancestors().find(|a| a.is_file()) {
+        let reason = format!("{} is a file, not a directory", file.display());
+        return Err(io_err("cannot write", std::io::Error::other(reason)));
+    }
     let result = (|| {
         fs::create_dir_all(&dir)?;
         let mut f = fs::File::create(&tmp)?;

@@ -403,6 +403,7 @@ fn replay_shows_its_steps_and_ends_where_the_one_shot_replay_ends() {
         under_a_file.to_str().unwrap(),
     ]);
     assert_clean_failure(&out, "viewer.html");
+    assert_clean_failure(&out, "is a file, not a directory");
     let out = plumenet(&[
         "replay",
         "--solver",
