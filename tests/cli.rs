@@ -470,6 +470,61 @@ fn replay_and_experiment_write_their_reports() {
     assert!(dir.join("boxplots.png").exists());
 }
 
+/// `experiment --rooms-of` runs in the layouts of a generated dataset (unseen rooms).
+#[test]
+fn experiment_runs_in_the_rooms_of_a_dataset() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("rooms");
+    let d = data.to_str().unwrap();
+    // Seed 12 draws a 7 m x 3 m room with the wind from the south.
+    plumenet_ok(&[
+        "generate",
+        "--out",
+        d,
+        "--layouts",
+        "1",
+        "--sources",
+        "1",
+        "--seed",
+        "12",
+    ]);
+    let out = tmp.path().join("study");
+    let run = |rooms: &str| {
+        plumenet(&[
+            "experiment",
+            "--solver",
+            "--no-cache",
+            "--rooms-of",
+            d,
+            "--rooms",
+            rooms,
+            "--runs",
+            "1",
+            "--features",
+            "rank",
+            "--sensors",
+            "sensor-ii",
+            "--max-iterations",
+            "2",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    assert!(run("1").status.success());
+    let runs = std::fs::read_to_string(out.join("runs.csv")).unwrap();
+    let row = runs.lines().nth(1).unwrap();
+    assert!(
+        row.starts_with("rooms-0,solver,none,planner,rank,sensor-ii,0,"),
+        "{row}"
+    );
+    assert_eq!(
+        runs.lines().count(),
+        2,
+        "only the dataset's room, not the default arena"
+    );
+    assert_clean_failure(&run("2"), "--rooms 2 is not between 1 and the 1 layouts");
+}
+
 #[test]
 fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
     let tmp = tempfile::tempdir().unwrap();

@@ -839,13 +839,17 @@ pub fn survey(a: SurveyArgs) -> Result<()> {
 
 #[derive(Debug, Args)]
 pub struct ExperimentArgs {
-    /// Layout JSON files, comma-separated: the study runs in each.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "data/layouts/wind-tunnel.json"
-    )]
-    layout: Vec<PathBuf>,
+    /// Layout JSON files, comma-separated: the study runs in each [default:
+    /// data/layouts/wind-tunnel.json, unless --rooms-of is given].
+    #[arg(long, value_delimiter = ',')]
+    layout: Option<Vec<PathBuf>>,
+    /// Also run in the first --rooms layouts of this generated dataset (for example unseen
+    /// rooms: `generate --seed 2`), named DATASET-k.
+    #[arg(long)]
+    rooms_of: Option<PathBuf>,
+    /// How many of --rooms-of's layouts.
+    #[arg(long, default_value_t = 5, requires = "rooms_of")]
+    rooms: usize,
     /// Where robots start: anywhere free, or within 1.5 m of the outlet (the far downwind end).
     #[arg(long, value_enum, default_value_t = StartArg::Anywhere)]
     start: StartArg,
@@ -931,10 +935,31 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
             SensorPreset::SensorII,
         )
         .robot;
+    let mut sites = Vec::new();
+    let files = match (&a.layout, &a.rooms_of) {
+        (Some(files), _) => files.clone(),
+        (None, Some(_)) => Vec::new(),
+        (None, None) => vec![PathBuf::from("data/layouts/wind-tunnel.json")],
+    };
+    for path in &files {
+        sites.push((layout_name(path), Layout::load(path)?));
+    }
+    if let Some(dir) = &a.rooms_of {
+        let manifest = plumenet::dataset::Manifest::load(dir)?;
+        if a.rooms == 0 || a.rooms > manifest.layouts.len() {
+            anyhow::bail!(
+                "--rooms {} is not between 1 and the {} layouts of {}",
+                a.rooms,
+                manifest.layouts.len(),
+                dir.display()
+            );
+        }
+        for (k, spec) in manifest.layouts.into_iter().take(a.rooms).enumerate() {
+            sites.push((format!("{}-{k}", layout_name(dir)), spec.check()?));
+        }
+    }
     let mut rows = Vec::new();
-    for path in &a.layout {
-        let layout = Layout::load(path)?;
-        let name = layout_name(path);
+    for (name, layout) in sites {
         let survey = match a.paths {
             PathsArg::Planner => None,
             PathsArg::Lawnmower => Some(lawnmower(&layout, &robot, a.survey_spacing)?),
