@@ -116,6 +116,10 @@ struct TrainArgs {
     /// Peak AdamW learning rate (cosine decay to 2% of it over the epochs).
     #[arg(long, default_value_t = 3e-4)]
     learning_rate: f64,
+    /// Weight of the maps' squared relative L2 error (in concentration) added to the loss (0:
+    /// the transformed target's squared error alone).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_weight)]
+    rel_l2_weight: f32,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -288,6 +292,14 @@ fn parse_point(s: &str) -> Result<(f64, f64), String> {
             .map_err(|_| format!("{t:?} is not a number"))
     };
     Ok((num(x)?, num(y)?))
+}
+
+/// A loss weight: finite and not negative.
+fn parse_weight(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(w) if w.is_finite() && w >= 0.0 => Ok(w),
+        _ => Err(format!("{s:?} is not a finite weight of at least 0")),
+    }
 }
 
 fn progress_bar(len: usize, what: &str) -> ProgressBar {
@@ -580,6 +592,7 @@ fn train(a: TrainArgs) -> Result<()> {
             EncodingArg::Gaussian => SourceEncoding::Gaussian,
             EncodingArg::Distance => SourceEncoding::Distance,
         },
+        rel_l2_weight: a.rel_l2_weight,
         ..TrainingConfig::default()
     };
     if let Some(dir) = &a.init_from {

@@ -788,3 +788,44 @@ fn the_any_room_model_predicts_an_unseen_room_and_refuses_a_too_long_one() {
     let err = model.predict(&long, [3.0, 3.0]).unwrap_err().to_string();
     assert!(err.contains("30"), "{err}");
 }
+
+/// The training loss with a relative-L2 term is the transformed target's masked MSE plus the
+/// weight times the mean over maps of the squared relative L2 error of `exp(y) - 1` over free
+/// cells (brute force); with weight 0 it is the masked MSE alone.
+#[test]
+fn the_relative_l2_loss_term_matches_its_formula() {
+    use burn::prelude::{Tensor, TensorData};
+    use plumenet::surrogate::backend::device;
+    use plumenet::surrogate::training::loss;
+    let dev = device();
+    let pred = [0.5f32, 1.0, 2.0, 0.1, 3.0, 0.0, 1.5, 2.5];
+    let y = [0.4f32, 1.2, 1.8, 0.0, 2.5, 0.3, 1.5, 3.0];
+    let free = [1.0f32, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0];
+    let t = |v: &[f32]| Tensor::<4>::from_data(TensorData::new(v.to_vec(), [2, 1, 2, 2]), &dev);
+    let mut config = TrainingConfig::default();
+    let value = |c: &TrainingConfig| -> f64 {
+        f64::from(loss(c, t(&pred), t(&y), t(&free)).into_scalar::<f32>())
+    };
+    let n: f32 = free.iter().sum();
+    let mse: f32 = (0..8)
+        .map(|i| free[i] * (pred[i] - y[i]).powi(2))
+        .sum::<f32>()
+        / n;
+    assert!((value(&config) - f64::from(mse)).abs() < 1e-6);
+    let rel = |m: usize| -> f32 {
+        let (mut err, mut norm) = (0.0, 0.0);
+        for i in 4 * m..4 * m + 4 {
+            let c = y[i].exp() - 1.0;
+            err += free[i] * (pred[i].exp() - 1.0 - c).powi(2);
+            norm += free[i] * c * c;
+        }
+        err / norm
+    };
+    config.rel_l2_weight = 0.5;
+    let expected = mse + 0.5 * 0.5 * (rel(0) + rel(1));
+    assert!(
+        (value(&config) - f64::from(expected)).abs() < 1e-5,
+        "{} vs {expected}",
+        value(&config)
+    );
+}

@@ -39,6 +39,11 @@ pub struct TrainingConfig {
     /// Learning rate over the run.
     #[serde(default)]
     pub schedule: LrSchedule,
+    /// Weight of the maps' squared relative L2 error (in concentration, over free cells) added
+    /// to the loss; 0, the default and every model before it, trains on the transformed
+    /// target's squared error alone.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub rel_l2_weight: f32,
     /// Start from the weights of this trained model (same architecture) instead of random ones:
     /// its weights digest, recorded so a resumed run can check it starts from the same model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -110,9 +115,14 @@ impl Default for TrainingConfig {
             schedule: LrSchedule::Cosine {
                 final_fraction: 0.02,
             },
+            rel_l2_weight: 0.0,
             init_from: None,
         }
     }
+}
+
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 /// Per-epoch losses (mean squared error of the transformed target over free cells).

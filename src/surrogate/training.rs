@@ -83,6 +83,23 @@ pub(crate) fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) ->
     (pred - target).powi_scalar(2).mul(free).sum().div(count)
 }
 
+/// The training loss: [`masked_mse`] of the transformed target, plus `rel_l2_weight` times the
+/// batch's mean squared relative L2 error of the concentration over free cells. The target is
+/// `y = ln(1 + c f / s)`, so `c` is proportional to `exp(y) - 1` with a factor that cancels in
+/// the ratio; predictions are capped at `y = 20` inside the exponential.
+pub fn loss(config: &TrainingConfig, pred: Tensor<4>, y: Tensor<4>, free: Tensor<4>) -> Tensor<1> {
+    let mse = masked_mse(pred.clone(), y.clone(), free.clone());
+    if config.rel_l2_weight == 0.0 {
+        return mse;
+    }
+    let per_map = |t: Tensor<4>| t.sum_dim(3).sum_dim(2).sum_dim(1);
+    let c = y.exp().sub_scalar(1.0);
+    let diff = pred.clamp_max(20.0).exp().sub_scalar(1.0).sub(c.clone());
+    let err = per_map(diff.powi_scalar(2).mul(free.clone()));
+    let norm = per_map(c.powi_scalar(2).mul(free)).add_scalar(1e-12);
+    mse.add(err.div(norm).mean().mul_scalar(config.rel_l2_weight))
+}
+
 /// [`TrainingData::batch`] with the run's inputs, encoding, normalisation and padding.
 fn batch(
     data: &TrainingData,
@@ -112,7 +129,7 @@ fn mean_loss(
     for bucket in data.buckets(samples, config.pad_cells) {
         for chunk in bucket.chunks(config.batch_size.max(1) * 2) {
             let (x, y, free) = batch(data, chunk, config, device)?;
-            let loss: f32 = masked_mse(model.forward(x), y, free).into_scalar();
+            let loss: f32 = loss(config, model.forward(x), y, free).into_scalar();
             sum += f64::from(loss) * chunk.len() as f64;
             n += chunk.len();
         }
@@ -268,7 +285,7 @@ pub fn train(
         let mut sum = 0.0;
         for (b, chunk) in batches.iter().enumerate() {
             let (x, y, free) = batch(data, chunk, config, &device)?;
-            let loss = masked_mse(model.forward(x), y, free);
+            let loss = loss(config, model.forward(x), y, free);
             let value = f64::from(loss.clone().into_scalar::<f32>());
             let grads = GradientsParams::from_grads(loss.backward(), &model);
             let progress_in_run =
