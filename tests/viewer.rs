@@ -339,20 +339,22 @@ fn replay_shows_its_steps_and_ends_where_the_one_shot_replay_ends() {
         ));
     }
     std::fs::write(&log, csv).unwrap();
-    let run = |extra: &[&str], json: &Path| {
-        let mut args = vec![
-            "replay",
-            "--solver",
-            "--no-cache",
-            "--log",
-            log.to_str().unwrap(),
-            "--source",
-            "6,2",
-            "--json",
-            json.to_str().unwrap(),
-        ];
+    let replay = |extra: &[&str]| {
+        let log = log.to_str().unwrap();
+        let mut args = vec!["replay", "--solver", "--no-cache", "--log", log];
         args.extend_from_slice(extra);
-        plumenet_ok(&args);
+        plumenet(&args)
+    };
+    let run = |extra: &[&str], json: &Path| {
+        let json = json.to_str().unwrap();
+        let mut args = vec!["--source", "6,2", "--json", json];
+        args.extend_from_slice(extra);
+        let out = replay(&args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         serde_json::from_str::<Value>(&std::fs::read_to_string(json).unwrap()).unwrap()
     };
     let once = run(&[], &tmp.path().join("once.json"));
@@ -393,25 +395,9 @@ fn replay_shows_its_steps_and_ends_where_the_one_shot_replay_ends() {
     let blocked = tmp.path().join("file");
     std::fs::write(&blocked, "").unwrap();
     let under_a_file = blocked.join("viewer.html");
-    let out = plumenet(&[
-        "replay",
-        "--solver",
-        "--no-cache",
-        "--log",
-        log.to_str().unwrap(),
-        "--html",
-        under_a_file.to_str().unwrap(),
-    ]);
+    let out = replay(&["--html", under_a_file.to_str().unwrap()]);
     assert_clean_failure(&out, "viewer.html");
     assert_clean_failure(&out, "is a file, not a directory");
-    let out = plumenet(&[
-        "replay",
-        "--solver",
-        "--no-cache",
-        "--log",
-        log.to_str().unwrap(),
-        "--png",
-        blocked.join("belief.png").to_str().unwrap(),
-    ]);
+    let out = replay(&["--png", blocked.join("belief.png").to_str().unwrap()]);
     assert_clean_failure(&out, "belief.png");
 }
