@@ -401,3 +401,67 @@ fn replay_shows_its_steps_and_ends_where_the_one_shot_replay_ends() {
     let out = replay(&["--png", blocked.join("belief.png").to_str().unwrap()]);
     assert_clean_failure(&out, "belief.png");
 }
+
+/// A long run in the largest room stays small: 30 iterations over 5168 candidates and 30000
+/// readings make a page under 5 MB that draws at most 2000 readings per iteration.
+#[test]
+fn a_long_run_in_a_large_room_makes_a_small_page() {
+    use plumenet::layout::Layout;
+    use plumenet::ste::features::{Feature, FeatureParams};
+    use plumenet::ste::posterior::Sample;
+    use plumenet::viewer::{MAX_READINGS_SHOWN, RunView, ViewerFrame};
+    let layout = Layout::load(&crate::common::repo_path(
+        "data/layouts/rooms/hall-30x12.json",
+    ))
+    .unwrap();
+    let candidates = layout.candidates(0.25).unwrap();
+    let samples: Vec<Sample> = (0..30_000)
+        .map(|k| {
+            let t = f64::from(k) * 0.1;
+            let x = 0.5 + 29.0 * (t / 3000.0);
+            Sample {
+                t,
+                x,
+                y: 6.0,
+                value: (t * 0.37).sin(),
+            }
+        })
+        .collect();
+    let frames: Vec<ViewerFrame> = (1..=30)
+        .map(|i| ViewerFrame {
+            iteration: i,
+            samples: 1000 * i,
+            trajectory: 1000 * i,
+            entropy: 8.0 / i as f64,
+            estimate: [15.0, 6.0],
+            posterior: (0..candidates.len())
+                .map(|k| ((k * i) % 97) as f64)
+                .collect(),
+        })
+        .collect();
+    let view = RunView {
+        title: "hall".into(),
+        layout: &layout,
+        candidates: &candidates,
+        spacing_m: 0.25,
+        feature: Feature::Rank,
+        feature_params: FeatureParams::default(),
+        samples: &samples,
+        trajectory: samples.iter().map(|s| [s.x, s.y]).collect(),
+        source: Some([10.0, 6.0]),
+        frames,
+    };
+    let html = view.html().unwrap();
+    assert!(html.len() < 5_000_000, "{} bytes", html.len());
+    let data = page_data(&html);
+    assert!(data["readings_shown"].as_array().unwrap().len() <= MAX_READINGS_SHOWN);
+    for f in data["frames"].as_array().unwrap() {
+        assert_eq!(f["posterior"].as_array().unwrap().len(), candidates.len());
+        assert!(f["feature"].as_array().unwrap().len() <= MAX_READINGS_SHOWN);
+    }
+    // A frame whose posterior does not match the candidates is refused.
+    let mut bad = view.clone();
+    bad.frames[3].posterior.pop();
+    let err = bad.html().unwrap_err().to_string();
+    assert!(err.contains("iteration 4"), "{err}");
+}
