@@ -737,6 +737,21 @@ fn a_run_can_start_from_a_trained_model() {
     )
     .unwrap();
     assert_eq!(losses(&again.history), losses(&cont.history));
+    // The same weights read from another path resume the run too.
+    let copy = tmp.path().join("copy");
+    std::fs::create_dir_all(&copy).unwrap();
+    for f in ["weights.bpk", "config.json"] {
+        std::fs::copy(first.join(f), copy.join(f)).unwrap();
+    }
+    let moved = TrainingConfig {
+        init_from: Some(WarmStart {
+            model: copy.display().to_string(),
+            weights_digest: digest.clone(),
+        }),
+        ..tiny_config(2)
+    };
+    let resumed = train(&data, &moved, &tmp.path().join("warm"), &mut |_| ()).unwrap();
+    assert_eq!(losses(&resumed.history), losses(&cont.history));
     let err = train(
         &data,
         &warm("0".repeat(64)),

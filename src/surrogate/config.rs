@@ -161,11 +161,16 @@ pub struct TrainState {
 
 impl TrainingConfig {
     /// Whether a checkpoint of `other` can be continued with `self`: everything but the epoch
-    /// limit and the patience must agree.
+    /// limit, the patience and the warm-start model's path must agree.
     pub fn same_run(&self, other: &TrainingConfig) -> bool {
+        // The warm-start model counts by its weights, not by the path it was read from.
         let strip = |c: &TrainingConfig| TrainingConfig {
             epochs: 0,
             patience: 0,
+            init_from: c.init_from.as_ref().map(|w| WarmStart {
+                model: String::new(),
+                ..w.clone()
+            }),
             ..c.clone()
         };
         strip(self) == strip(other)
