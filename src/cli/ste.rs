@@ -638,13 +638,16 @@ impl SessionArgs {
         config
     }
 
-    /// A fresh session, with the layout's and the model's names; notes go to standard error
-    /// (standard output may be a protocol's).
+    /// The layout's world and the model's name; notes go to standard error (standard output
+    /// may be a protocol's).
+    fn world(&self) -> Result<(World, String)> {
+        self.plume.world_quietly(Layout::load(&self.layout)?)
+    }
+
+    /// A fresh session, with the layout's and the model's names.
     fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
-        use plumenet::ste::session::Session;
-        let layout = Layout::load(&self.layout)?;
-        let (world, model) = self.plume.world_quietly(layout)?;
-        let session = Session::new(&world, self.config())?;
+        let (world, model) = self.world()?;
+        let session = plumenet::ste::session::Session::new(&world, self.config())?;
         Ok((session, layout_name(&self.layout), model))
     }
 }
@@ -1255,8 +1258,7 @@ pub struct BenchServeArgs {
 }
 
 pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
-    let layout = Layout::load(&a.session.layout)?;
-    let (world, model) = a.session.plume.world_quietly(layout)?;
+    let (world, model) = a.session.world()?;
     let config = a.session.config();
     println!(
         "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
