@@ -64,6 +64,9 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// A figure could not be drawn.
+    #[error("cannot draw the figure: {0}")]
+    Figure(String),
     /// A PNG could not be encoded.
     #[error("cannot encode image {path}: {reason}")]
     Image {
@@ -72,6 +75,15 @@ pub enum Error {
         /// What went wrong.
         reason: String,
     },
+}
+
+/// Plotters' drawing errors (of any backend) as ours.
+impl<E: std::error::Error + Send + Sync> From<plotters::drawing::DrawingAreaErrorKind<E>>
+    for Error
+{
+    fn from(e: plotters::drawing::DrawingAreaErrorKind<E>) -> Self {
+        Self::Figure(e.to_string())
+    }
 }
 
 /// The crate's result alias.

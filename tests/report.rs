@@ -2,7 +2,7 @@
 //! colour bar is labelled, SVG carries the same text, box statistics follow the type-7 rule.
 
 use ndarray::Array2;
-use plumenet::report::boxplot::{BoxGroup, BoxPanel, group_values};
+use plumenet::report::boxplot::{BoxPanel, group_values};
 use plumenet::report::{FieldPanel, FieldPlot, Panel, colour, save_figure};
 use plumenet::stats::BoxStats;
 
@@ -123,22 +123,21 @@ fn box_statistics_follow_type_7_quartiles_and_whiskers_stop_at_data() {
         ("rank".into(), "sensor-i".into(), 3.0),
         ("rank".into(), "sensor-ii".into(), 4.0),
     ]);
+    // Groups and the series within each keep the order they first appear in.
+    let order: Vec<(&str, Vec<&str>)> = groups
+        .iter()
+        .map(|(g, b)| (g.as_str(), b.keys().map(String::as_str).collect()))
+        .collect();
     assert_eq!(
-        groups,
+        order,
         [
-            BoxGroup {
-                label: "rank".into(),
-                boxes: vec![
-                    ("sensor-i".into(), vec![1.0, 3.0]),
-                    ("sensor-ii".into(), vec![4.0])
-                ],
-            },
-            BoxGroup {
-                label: "value".into(),
-                boxes: vec![("sensor-ii".into(), vec![2.0])],
-            },
+            ("rank", vec!["sensor-i", "sensor-ii"]),
+            ("value", vec!["sensor-ii"])
         ]
     );
+    assert_eq!(groups["rank"]["sensor-i"], [1.0, 3.0]);
+    assert_eq!(groups["rank"]["sensor-ii"], [4.0]);
+    assert_eq!(groups["value"]["sensor-ii"], [2.0]);
     // The figure draws every box in its series' colour, with its group labels as text.
     let tmp = tempfile::tempdir().unwrap();
     let svg = tmp.path().join("b.svg");

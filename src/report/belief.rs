@@ -11,7 +11,7 @@ use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
-use crate::report::{FieldPanel, FieldPlot, Panel, Plot, colour, legend, save_figure};
+use crate::report::{FieldPanel, FieldPlot, Panel, colour, legend, save_figure};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::run::Episode;
 
@@ -85,34 +85,26 @@ where
 {
     let path = p.trajectory.iter().map(|&[_, x, y]| (x, y));
     chart
-        .draw_series(LineSeries::new(path, TRAJECTORY.stroke_width(2)))
-        .plot()?
+        .draw_series(LineSeries::new(path, TRAJECTORY.stroke_width(2)))?
         .label("trajectory")
         .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], TRAJECTORY.stroke_width(3)));
-    let dot = |(x, y), e: f32| Circle::new((x, y), 3, colour(&PLASMA, f64::from(e)).filled());
+    let rank = |e: &f32| colour(&PLASMA, f64::from(*e)).filled();
+    let dots = p.samples.iter().zip(p.edf);
     chart
-        .draw_series(
-            p.samples
-                .iter()
-                .zip(p.edf)
-                .map(|(&[x, y], &e)| dot((x, y), e)),
-        )
-        .plot()?
+        .draw_series(dots.map(|(&[x, y], e)| Circle::new((x, y), 3, rank(e))))?
         .label("readings (colour: rank, low to high)")
         .legend(|(x, y)| Circle::new((x + 8, y), 4, colour(&PLASMA, 0.8).filled()));
     if let Some([x, y]) = p.source {
         let marks = [(8, BLACK), (6, SOURCE)].map(|(r, c)| Circle::new((x, y), r, c.filled()));
         chart
-            .draw_series(marks)
-            .plot()?
+            .draw_series(marks)?
             .label("true source")
             .legend(|(x, y)| Circle::new((x + 8, y), 5, SOURCE.filled()));
     }
     let [x, y] = p.estimate;
     let marks = [(BLACK, 4), (WHITE, 2)].map(|(c, w)| Cross::new((x, y), 8, c.stroke_width(w)));
     chart
-        .draw_series(marks)
-        .plot()?
+        .draw_series(marks)?
         .label("estimate")
         .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
     legend(chart, SeriesLabelPosition::UpperRight)
@@ -133,26 +125,23 @@ pub fn write_episode_pictures(
     dir: &Path,
 ) -> Result<Vec<PathBuf>> {
     let positions: Vec<[f64; 2]> = episode.samples.iter().map(|s| [s.x, s.y]).collect();
+    let values: Vec<f64> = episode.samples.iter().map(|s| s.value).collect();
+    let mut ranks = FeatureTrack::new(Feature::Rank, FeatureParams::default());
     let mut out = Vec::new();
     for rec in &episode.history {
-        let posterior = rec
-            .posterior
-            .as_deref()
-            .ok_or_else(|| Error::Parameter("the run kept no posteriors to draw".into()))?;
-        let values: Vec<f64> = episode.samples[..rec.samples]
-            .iter()
-            .map(|s| s.value)
-            .collect();
-        let mut edf = FeatureTrack::new(Feature::Rank, FeatureParams::default());
-        edf.extend(&values);
+        let Some(posterior) = rec.posterior.as_deref() else {
+            return Err(Error::Parameter(
+                "the run kept no posteriors to draw".into(),
+            ));
+        };
+        ranks.extend(&values[ranks.len()..rec.samples]);
+        let [ex, ey] = rec.estimate;
         let title = format!(
-            "iteration {}   {} / {}   entropy {:.2} nats   estimate ({:.2}, {:.2}) m",
+            "iteration {}   {} / {}   entropy {:.2} nats   estimate ({ex:.2}, {ey:.2}) m",
             rec.iteration,
             episode.config.ste.feature.name(),
             episode.config.sensor.name(),
             rec.entropy,
-            rec.estimate[0],
-            rec.estimate[1]
         );
         let plot = BeliefPlot {
             title: &title,
@@ -161,7 +150,7 @@ pub fn write_episode_pictures(
             posterior,
             trajectory: &episode.trajectory[..rec.trajectory_len],
             samples: &positions[..rec.samples],
-            edf: edf.features(),
+            edf: ranks.features(),
             source: Some(episode.source),
             estimate: rec.estimate,
         };

@@ -2,6 +2,8 @@
 //! decades below the maximum), obstacles in grey, axes in metres, a title and a colour bar
 //! labelled in the field's unit.
 
+use std::ops::Range;
+
 use colorous::VIRIDIS;
 use ndarray::Array2;
 use plotters::coord::Shift;
@@ -10,7 +12,7 @@ use plotters::prelude::*;
 use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::report::belief::{BeliefPlot, draw_run};
-use crate::report::{Plot, colour, text};
+use crate::report::{colour, text};
 
 /// Decades shown below the maximum on a log scale.
 pub const LOG_DECADES: f64 = 4.0;
@@ -37,14 +39,14 @@ pub struct FieldPlot {
 /// A field panel (see the module's documentation).
 #[derive(Debug, Clone)]
 pub struct FieldPanel<'a> {
-    field: Array2<f64>,
+    /// The field on the colour scale: log10 of the values on a log scale.
+    scaled: Array2<f64>,
     layout: &'a Layout,
     plot: FieldPlot,
     /// A run drawn on top (see [`crate::report::belief`]).
     pub(crate) run: Option<Box<BeliefPlot<'a>>>,
-    /// Colour scale bounds (of log10 of the values on a log scale).
-    lo: f64,
-    hi: f64,
+    /// The colour scale's bounds.
+    range: Range<f64>,
 }
 
 impl<'a> FieldPanel<'a> {
@@ -52,7 +54,7 @@ impl<'a> FieldPanel<'a> {
     ///
     /// # Errors
     /// [`Error::Parameter`] when the field's shape is not the layout's grid or it holds NaN.
-    pub fn new(field: Array2<f64>, layout: &'a Layout, plot: FieldPlot) -> Result<Self> {
+    pub fn new(mut field: Array2<f64>, layout: &'a Layout, plot: FieldPlot) -> Result<Self> {
         if field.dim() != layout.shape() {
             return Err(Error::Parameter(format!(
                 "field shape {:?} does not match the layout grid {:?}",
@@ -63,20 +65,21 @@ impl<'a> FieldPanel<'a> {
         if field.iter().any(|v| v.is_nan()) {
             return Err(Error::Parameter("field contains NaN".into()));
         }
-        let vmax = field.iter().copied().fold(0.0_f64, f64::max);
-        let vmin = field.iter().copied().fold(0.0_f64, f64::min);
-        let (lo, hi) = match (plot.log, vmax > 0.0) {
-            (true, true) => (vmax.log10() - LOG_DECADES, vmax.log10()),
-            (true, false) => (-LOG_DECADES, 0.0),
-            (false, _) => (vmin, if vmax > vmin { vmax } else { vmin + 1.0 }),
+        let hi = field.fold(0.0_f64, |a, &v| a.max(v));
+        let range = if plot.log {
+            field.mapv_inplace(|v| v.max(1e-300).log10());
+            let top = if hi > 0.0 { hi.log10() } else { 0.0 };
+            top - LOG_DECADES..top
+        } else {
+            let lo = field.fold(0.0_f64, |a, &v| a.min(v));
+            lo..if hi > lo { hi } else { lo + 1.0 }
         };
         Ok(Self {
-            field,
+            scaled: field,
             layout,
             plot,
             run: None,
-            lo,
-            hi,
+            range,
         })
     }
 
@@ -92,52 +95,45 @@ impl<'a> FieldPanel<'a> {
         (w, TITLE_H + 2 * MARGIN + ny as u32 * s + X_LABEL)
     }
 
+    /// The colour of a scaled value.
+    fn colour(&self, v: f64) -> RGBColor {
+        let Range { start, end } = self.range;
+        colour(&VIRIDIS, (v - start) / (end - start))
+    }
+
     pub(crate) fn draw<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
         let (title, body) = area.split_vertically(TITLE_H);
         let at = ((MARGIN + Y_LABEL) as i32, 8);
-        title.draw_text(&self.plot.title, &text(17), at).plot()?;
-        let (ny, nx) = self.layout.shape();
-        let (map_area, bar_area) =
-            body.split_horizontally(2 * MARGIN + Y_LABEL + nx as u32 * self.cell_px());
+        title.draw_text(&self.plot.title, &text(17), at)?;
+        let map_w = 2 * MARGIN + Y_LABEL + self.layout.shape().1 as u32 * self.cell_px();
+        let (map_area, bar_area) = body.split_horizontally(map_w);
         let (w, h) = (self.layout.width(), self.layout.height());
         let mut chart = ChartBuilder::on(&map_area)
             .margin(MARGIN)
             .x_label_area_size(X_LABEL)
             .y_label_area_size(Y_LABEL)
-            .build_cartesian_2d(0.0..w, 0.0..h)
-            .plot()?;
+            .build_cartesian_2d(0.0..w, 0.0..h)?;
         chart
             .configure_mesh()
             .disable_mesh()
             .x_desc("x (m)")
             .y_desc("y (m)")
-            .x_label_formatter(&|v| tick_label(*v))
-            .y_label_formatter(&|v| tick_label(*v))
             .label_style(text(13))
             .axis_desc_style(text(14))
-            .draw()
-            .plot()?;
+            .draw()?;
         let half = 0.5 * self.layout.cell();
-        let cells = (0..ny).flat_map(|j| (0..nx).map(move |i| (j, i)));
-        chart
-            .draw_series(cells.map(|(j, i)| {
-                let (x, y) = self.layout.cell_centre(j, i);
-                let v = self.field[[j, i]];
-                let t = if self.plot.log {
-                    v.max(1e-300).log10()
-                } else {
-                    v
-                };
-                let c = if self.layout.is_solid(j, i) {
-                    OBSTACLE
-                } else {
-                    colour(&VIRIDIS, (t - self.lo) / (self.hi - self.lo))
-                };
-                Rectangle::new([(x - half, y - half), (x + half, y + half)], c.filled())
-            }))
-            .plot()?;
+        let cells = self.scaled.indexed_iter().map(|((j, i), &v)| {
+            let (x, y) = self.layout.cell_centre(j, i);
+            let c = if self.layout.is_solid(j, i) {
+                OBSTACLE
+            } else {
+                self.colour(v)
+            };
+            Rectangle::new([(x - half, y - half), (x + half, y + half)], c.filled())
+        });
+        chart.draw_series(cells)?;
         let frame = Rectangle::new([(0.0, 0.0), (w, h)], BLACK.stroke_width(1));
-        chart.plotting_area().draw(&frame).plot()?;
+        chart.plotting_area().draw(&frame)?;
         if let Some(run) = &self.run {
             draw_run(&mut chart, run)?;
         }
@@ -147,22 +143,17 @@ impl<'a> FieldPanel<'a> {
     /// The colour bar: a linear axis over the scale (log10 of the values on a log scale, whole
     /// decades then), labelled with the values.
     fn draw_colour_bar<DB: DrawingBackend>(&self, area: &DrawingArea<DB, Shift>) -> Result<()> {
-        let (lo, hi, log) = (self.lo, self.hi, self.plot.log);
+        let Range { start, end } = self.range;
         let mut chart = ChartBuilder::on(area)
             .margin(MARGIN)
             .x_label_area_size(X_LABEL)
             .set_label_area_size(LabelAreaPosition::Right, BAR_LABEL)
-            .build_cartesian_2d(0.0..1.0, lo..hi)
-            .plot()?;
-        let steps = 128;
-        chart
-            .draw_series((0..steps).map(|k| {
-                let t = |k: i32| f64::from(k) / f64::from(steps);
-                let (y0, y1) = (lo + t(k) * (hi - lo), lo + t(k + 1) * (hi - lo));
-                let c = colour(&VIRIDIS, t(k) + 0.5 / f64::from(steps));
-                Rectangle::new([(0.0, y0), (1.0, y1)], c.filled())
-            }))
-            .plot()?;
+            .build_cartesian_2d(0.0..1.0, start..end)?;
+        let step = (end - start) / 128.0;
+        let bands = (0..128).map(|k| start + f64::from(k) * step);
+        let fill = |y: f64| self.colour(y + 0.5 * step).filled();
+        chart.draw_series(bands.map(|y| Rectangle::new([(0.0, y), (1.0, y + step)], fill(y))))?;
+        let log = self.plot.log;
         chart
             .configure_mesh()
             .disable_mesh()
@@ -172,8 +163,8 @@ impl<'a> FieldPanel<'a> {
             .label_style(text(13))
             .axis_desc_style(text(14))
             .y_label_formatter(&|v| tick_label(if log { 10f64.powf(*v) } else { *v }))
-            .draw()
-            .plot()
+            .draw()?;
+        Ok(())
     }
 }
 

@@ -1,13 +1,11 @@
 //! Figures drawn with `plotters`: fields over the arena ([`field`]), STE beliefs ([`belief`]) and
-//! the study's box plots ([`boxplot`]), with axes in metres, ticks, titles, labelled colour bars
-//! and legends; written as PNG, or as SVG when the file name ends in `.svg`.
-//!
-//! Text is DejaVu Sans, embedded by the `dejavu` crate and rasterised by ab_glyph: a machine
-//! without system fonts draws the same pictures.
+//! the study's box plots ([`boxplot`]); PNG, or SVG when the file name ends in `.svg`. Text is
+//! DejaVu Sans, embedded by the `dejavu` crate: no system fonts needed.
 
 use std::path::Path;
 use std::sync::Once;
 
+use dejavu::sans;
 use image::ImageEncoder;
 use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
@@ -53,37 +51,28 @@ impl Panel<'_> {
 /// Writes a figure atomically: SVG when the path ends in `.svg`, PNG otherwise.
 ///
 /// # Errors
-/// [`Error::Parameter`] when a panel cannot be drawn, [`Error::Image`] when encoding fails,
+/// [`Error::Figure`] when a panel cannot be drawn, [`Error::Image`] when encoding fails,
 /// [`Error::Io`] when the file cannot be written.
 pub fn save_figure(panels: &[Panel<'_>], path: &Path) -> Result<()> {
     static FONTS: Once = Once::new();
-    FONTS.call_once(|| {
-        // Valid TrueType bytes shipped by `dejavu`; were they not, text would be missing, which
-        // the figure tests would catch.
-        let _ = register_font(FONT, FontStyle::Normal, dejavu::sans::regular());
-    });
+    // `dejavu` ships valid TrueType bytes; were they not, the figure tests would miss the text.
+    FONTS.call_once(|| register_font(FONT, FontStyle::Normal, sans::regular()).unwrap_or(()));
     let w = panels.iter().map(|p| p.size().0).max().unwrap_or(1);
     let h = panels.iter().map(|p| p.size().1).sum::<u32>().max(1);
-    let svg = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
     io::write_atomic(path, |out| {
-        if svg {
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("svg"))
+        {
             let mut doc = String::new();
-            draw(
-                SVGBackend::with_string(&mut doc, (w, h)).into_drawing_area(),
-                panels,
-            )?;
+            draw(SVGBackend::with_string(&mut doc, (w, h)), panels)?;
             out.extend_from_slice(doc.as_bytes());
             return Ok(());
         }
         let mut rgb = vec![255u8; w as usize * h as usize * 3];
-        draw(
-            BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area(),
-            panels,
-        )?;
-        image::codecs::png::PngEncoder::new(out)
-            .write_image(&rgb, w, h, image::ExtendedColorType::Rgb8)
+        draw(BitMapBackend::with_buffer(&mut rgb, (w, h)), panels)?;
+        let png = image::codecs::png::PngEncoder::new(out);
+        png.write_image(&rgb, w, h, image::ExtendedColorType::Rgb8)
             .map_err(|e| Error::Image {
                 path: path.to_path_buf(),
                 reason: e.to_string(),
@@ -92,28 +81,15 @@ pub fn save_figure(panels: &[Panel<'_>], path: &Path) -> Result<()> {
 }
 
 /// Draws panels top to bottom on white.
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, panels: &[Panel<'_>]) -> Result<()> {
-    root.fill(&WHITE).plot()?;
-    let mut rest = root;
+fn draw<DB: DrawingBackend>(backend: DB, panels: &[Panel<'_>]) -> Result<()> {
+    let mut rest = backend.into_drawing_area();
+    rest.fill(&WHITE)?;
     for panel in panels {
         let (top, bottom) = rest.split_vertically(panel.size().1);
         panel.draw(&top)?;
         rest = bottom;
     }
-    rest.present().plot()
-}
-
-/// Plotters' drawing errors as ours.
-trait Plot<T> {
-    fn plot(self) -> Result<T>;
-}
-
-impl<T, E: std::error::Error + Send + Sync> Plot<T>
-    for std::result::Result<T, DrawingAreaErrorKind<E>>
-{
-    fn plot(self) -> Result<T> {
-        self.map_err(|e| Error::Parameter(format!("cannot draw the figure: {e}")))
-    }
+    Ok(rest.present()?)
 }
 
 /// The colour of `t` in `[0, 1]` on a colour map (for example `colorous::VIRIDIS`).
@@ -133,8 +109,8 @@ fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .label_font(text(12))
-        .draw()
-        .plot()
+        .draw()?;
+    Ok(())
 }
 
 /// Black text of `size` pixels.
