@@ -330,12 +330,12 @@ impl Layout {
         &self.spec
     }
 
-    /// Arena length along the wind (m).
+    /// Arena extent along x (m): along the wind when it blows from west or east.
     pub fn width(&self) -> f64 {
         self.spec.width_m
     }
 
-    /// Arena width across the wind (m).
+    /// Arena extent along y (m): across the wind when it blows from west or east.
     pub fn height(&self) -> f64 {
         self.spec.height_m
     }
@@ -447,6 +447,17 @@ impl Layout {
     /// The wall the wind comes from.
     pub fn wind_from(&self) -> WindFrom {
         self.spec.wind.from
+    }
+
+    /// The fully mixed concentration `q / (U H)` of a release of `rate` per second: the rate
+    /// over the inlet speed times the arena's extent across the wind (its height for wind from
+    /// west or east, its width for wind from south or north).
+    pub fn fully_mixed(&self, rate: f64) -> f64 {
+        let across = match self.wind_from() {
+            WindFrom::West | WindFrom::East => self.height(),
+            WindFrom::South | WindFrom::North => self.width(),
+        };
+        rate / (self.wind_speed() * across)
     }
 
     /// Distance (m) from a point to the nearest of the arena's four edges (walls, inlet, outlet).

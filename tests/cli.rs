@@ -669,6 +669,29 @@ fn bad_ste_input_fails_cleanly() {
         "-2",
     ]);
     assert_clean_failure(&out, "--reality-background must be zero or positive");
+    for (flag, value, needle) in [
+        (
+            "--background-rise",
+            "-1",
+            "background rise must be zero or positive",
+        ),
+        (
+            "--background-time",
+            "0",
+            "background time constant must be a positive",
+        ),
+    ] {
+        let args = [
+            "localize",
+            "--solver",
+            "--no-cache",
+            "--source",
+            "3,2",
+            flag,
+            value,
+        ];
+        assert_clean_failure(&plumenet(&args), needle);
+    }
     let out = plumenet(&[
         "experiment",
         "--solver",

@@ -300,7 +300,8 @@ fn prior_is_uniform_on_its_support_and_zero_elsewhere() {
 }
 
 /// The likelihood, brute force: features from scratch, the paper's formula (and, for rank,
-/// with our clean-air ties and rank tolerance as well as without), no sensor lag.
+/// with our clean-air ties, rank tolerance and background nuisance as well as without), no
+/// sensor lag.
 #[test]
 fn posterior_matches_the_papers_formula_by_brute_force() {
     use plumenet::ste::posterior::clean_air_ties;
@@ -351,43 +352,56 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                 row
             })
             .collect();
-        let log_lik: Vec<f64> = (0..sampler.len())
-            .map(|k| {
-                let floor = params.detection_floor_ppm;
-                let c: Vec<f64> = rows
-                    .iter()
-                    .map(|r| f64::from(r[k]))
-                    .map(|c| if c < floor { 0.0 } else { c })
-                    .collect();
-                let e = features(&c);
-                let r = params.rank_tolerance;
-                let share = |ci: f64| {
-                    let near = c.iter().filter(|&&cj| (ci / r..=ci * r).contains(&cj));
-                    if ours && ci > 0.0 {
-                        near.count() as f64 / n
-                    } else {
-                        0.0
-                    }
-                };
-                -0.5 * n / (n + 1.0)
-                    * e.iter()
-                        .zip(&m)
-                        .zip(&c)
-                        .map(|((e, m), &ci)| (e - m).powi(2) / (var + share(ci).powi(2)))
-                        .sum::<f64>()
-            })
-            .collect();
+        // Rank marginalises a rising background (0, half and the whole of the rise); the
+        // posterior sums each candidate's likelihood over them.
+        let a = params.background_rise;
+        let levels = if a > 0.0 {
+            vec![0.0, 0.5 * a, a]
+        } else {
+            vec![0.0]
+        };
+        let mixed = world().layout.fully_mixed(1.0) * params.ppm_per_unit;
+        let rise = |t: f64| 1.0 - (-(t - samples[0].t) / params.background_time_s).exp();
+        let log_lik = |level: f64| -> Vec<f64> {
+            (0..sampler.len())
+                .map(|k| {
+                    let floor = params.detection_floor_ppm;
+                    let c: Vec<f64> = rows
+                        .iter()
+                        .zip(&samples)
+                        .map(|(r, s)| f64::from(r[k] + (level * mixed * rise(s.t)) as f32))
+                        .map(|c| if c < floor { 0.0 } else { c })
+                        .collect();
+                    let e = features(&c);
+                    let r = params.rank_tolerance;
+                    let share = |ci: f64| {
+                        let near = c.iter().filter(|&&cj| (ci / r..=ci * r).contains(&cj));
+                        if ours && ci > 0.0 {
+                            near.count() as f64 / n
+                        } else {
+                            0.0
+                        }
+                    };
+                    -0.5 * n / (n + 1.0)
+                        * e.iter()
+                            .zip(&m)
+                            .zip(&c)
+                            .map(|((e, m), &ci)| (e - m).powi(2) / (var + share(ci).powi(2)))
+                            .sum::<f64>()
+                })
+                .collect()
+        };
+        let log_lik: Vec<Vec<f64>> = levels.iter().map(|&l| log_lik(l)).collect();
         let sup = support();
         let top = log_lik
             .iter()
-            .zip(&sup)
-            .filter(|p| *p.1)
-            .map(|p| *p.0)
+            .flat_map(|ll| ll.iter().zip(&sup).filter(|p| *p.1).map(|p| *p.0))
             .fold(f64::NEG_INFINITY, f64::max);
-        let w: Vec<f64> = log_lik
-            .iter()
-            .zip(&sup)
-            .map(|(l, &s)| if s { (l - top).exp() } else { 0.0 })
+        let w: Vec<f64> = (0..sampler.len())
+            .map(|k| match sup[k] {
+                true => log_lik.iter().map(|ll| (ll[k] - top).exp()).sum(),
+                false => 0.0,
+            })
             .collect();
         let total: f64 = w.iter().sum();
         for (k, (&p, wk)) in est.posterior().iter().zip(&w).enumerate() {

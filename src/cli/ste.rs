@@ -132,9 +132,17 @@ pub struct FeatureArgs {
     /// seconds (default: one baseline for the whole run).
     #[arg(long)]
     clean_air_window: Option<f64>,
-    /// Rank only: the paper's rank likelihood, without our clean-air ties and rank tolerance
-    /// (exactly invariant under every increasing transform of the readings).
-    #[arg(long, conflicts_with = "rank_tolerance")]
+    /// Marginalise a background of recirculated gas rising during the run by 0, half or the
+    /// whole of this many fully mixed concentrations q / (U H) (default: 0.5 for rank, 0 for
+    /// the other features; 0 turns it off).
+    #[arg(long, allow_negative_numbers = true)]
+    background_rise: Option<f64>,
+    /// The time constant (s) of that background's rise, the room's air-exchange time.
+    #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
+    background_time: f64,
+    /// Rank only: the paper's rank likelihood, without our clean-air ties, rank tolerance and
+    /// background nuisance (exactly invariant under every increasing transform of the readings).
+    #[arg(long, conflicts_with_all = ["rank_tolerance", "background_rise"])]
     paper_rank: bool,
 }
 
@@ -158,6 +166,10 @@ impl FeatureArgs {
         }
         p.rank_tolerance = self.rank_tolerance;
         p.clean_air_window_s = self.clean_air_window;
+        if let Some(a) = self.background_rise {
+            p.background_rise = a;
+        }
+        p.background_time_s = self.background_time;
         if self.paper_rank {
             p = p.papers_rank();
         }
@@ -588,7 +600,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         let mut report = json!({
             "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
-            "baselines": baselines, "wind_scales": wind_scales, "posterior": posterior,
+            "baselines": baselines, "wind_scales": wind_scales, "backgrounds": est.backgrounds(), "posterior": posterior,
         });
         if let (Some(s), Some(e)) = (source, error_m) {
             report["source"] = json!(s);
@@ -1072,6 +1084,10 @@ pub struct BenchSteArgs {
     /// bank, side by side: the cost of marginalising the wind speed.
     #[arg(long, value_delimiter = ',')]
     wind_scales: Vec<f64>,
+    /// Also time rank with the background nuisance at this rise (three rises; rank's default
+    /// is 0.5) against rank without it, side by side (0: not timed).
+    #[arg(long, default_value_t = 0.0)]
+    background_rise: f64,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -1109,24 +1125,41 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             "candidates": t.candidates, "samples": t.samples,
         }));
     }
-    let nuisance = if a.wind_scales.len() > 1 {
+    // Each nuisance against rank over one bank without any, side by side: (what, world,
+    // settings, values).
+    let rank = SteParams {
+        background_rise: 0.0,
+        ..SteParams::for_feature(Feature::Rank)
+    };
+    let mut nuisances = Vec::new();
+    if a.wind_scales.len() > 1 {
         let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
-        let rank = SteParams::for_feature(Feature::Rank);
-        let one = plumenet::bench::time_ste_update(&world, rank, a.samples, a.batch, a.repeats)?;
-        let all = plumenet::bench::time_ste_update(&banks, rank, a.samples, a.batch, a.repeats)?;
-        let k = a.wind_scales.len();
+        nuisances.push(("wind-speed banks", banks, rank, a.wind_scales.len()));
+    }
+    if a.background_rise > 0.0 {
+        let with = SteParams {
+            background_rise: a.background_rise,
+            ..rank
+        };
+        nuisances.push(("background rises", world.clone(), with, 3));
+    }
+    let time = |w: &World, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
+    let mut nuisance = Vec::new();
+    let one = match nuisances.is_empty() {
+        true => None,
+        false => Some(time(&world, rank)?),
+    };
+    for (what, w, params, k) in &nuisances {
+        let Some(one) = &one else { break };
+        let all = time(w, *params)?;
         let per_added = (all.update_s - one.update_s) / (k - 1) as f64 / one.update_s;
         println!(
-            "  rank over {k} wind-speed banks: update {:7.2} ms against {:.2} ms over one; each added bank costs {per_added:.2}x one bank's update",
+            "  rank over {k} {what}: update {:7.2} ms against {:.2} ms over one; each added value costs {per_added:.2}x one bank's update",
             all.update_s * 1e3,
             one.update_s * 1e3
         );
-        Some(
-            json!({"banks": k, "update_ms": all.update_s * 1e3, "one_bank_ms": one.update_s * 1e3, "per_added_bank": per_added}),
-        )
-    } else {
-        None
-    };
+        nuisance.push(json!({"nuisance": what, "values": k, "update_ms": all.update_s * 1e3, "one_bank_ms": one.update_s * 1e3, "per_added_value": per_added}));
+    }
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     let ep = run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false)?;
     println!(
@@ -1136,7 +1169,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         ep.samples.len()
     );
     if let Some(path) = &a.json {
-        let value = json!({"updates": report, "run_s": ep.wall_time_s, "run_iterations": ep.iterations, "wind_scales": nuisance});
+        let value = json!({"updates": report, "run_s": ep.wall_time_s, "run_iterations": ep.iterations, "nuisances": nuisance});
         io::write_json(path, &value)?;
     }
     Ok(())

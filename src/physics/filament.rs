@@ -184,7 +184,7 @@ impl FilamentPlume {
 
     /// The uniform background of recirculated gas in free space now (units/m^2).
     pub fn background_level(&self) -> f64 {
-        let mixed = self.config.source_rate / (self.layout.wind_speed() * self.layout.height());
+        let mixed = self.layout.fully_mixed(self.config.source_rate);
         self.config.background * mixed * (1.0 - (-self.time / self.config.background_time_s).exp())
     }
 

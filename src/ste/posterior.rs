@@ -130,6 +130,21 @@ pub struct SteParams {
     /// trusted; the share of estimates within that factor of each estimate is added to its
     /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
     pub rank_tolerance: f64,
+    /// A background of recirculated gas rising during the run, as a nuisance: the model's
+    /// concentrations plus `a * (1 - exp(-t / background_time_s))` (t from the first reading),
+    /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
+    /// concentrations ([`Layout::fully_mixed`]), each equally likely a priori and marginalised
+    /// in the posterior. 0 turns it off; rank's default is 0.5, the other features' 0.
+    #[serde(default)]
+    pub background_rise: f64,
+    /// The background's time constant (s), the room's air-exchange time.
+    #[serde(default = "default_background_time_s")]
+    pub background_time_s: f64,
+}
+
+/// The default time constant of the background's rise (s).
+fn default_background_time_s() -> f64 {
+    60.0
 }
 
 impl SteParams {
@@ -147,15 +162,22 @@ impl SteParams {
             clean_air_ties: true,
             clean_air_window_s: None,
             rank_tolerance: RANK_TOLERANCE,
+            background_rise: if feature == Feature::Rank {
+                BACKGROUND_RISE
+            } else {
+                0.0
+            },
+            background_time_s: default_background_time_s(),
         }
     }
 
     /// The same settings with the paper's rank likelihood: no clean-air ties, no rank
-    /// tolerance (other features are unaffected).
+    /// tolerance, no background nuisance (other features are unaffected).
     pub fn papers_rank(self) -> Self {
         Self {
             clean_air_ties: false,
             rank_tolerance: 1.0,
+            background_rise: 0.0,
             ..self
         }
     }
@@ -197,6 +219,18 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "rank tolerance must be a factor of at least 1, got {}",
                 self.rank_tolerance
+            )));
+        }
+        if !(self.background_rise.is_finite() && self.background_rise >= 0.0) {
+            return Err(Error::Parameter(format!(
+                "the background rise must be zero or positive, got {}",
+                self.background_rise
+            )));
+        }
+        if !(self.background_time_s.is_finite() && self.background_time_s > 0.0) {
+            return Err(Error::Parameter(format!(
+                "the background time constant must be a positive number of seconds, got {}",
+                self.background_time_s
             )));
         }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
@@ -241,8 +275,15 @@ pub struct Estimator {
     /// The banks: the model's at the layout's wind speed first, then at the other nuisance
     /// values (see [`Estimator::with_banks`]).
     samplers: Vec<Arc<FieldSampler>>,
-    /// Posterior of each bank (its nuisance value), summed over candidates.
+    /// Posterior of each bank (its nuisance value), summed over candidates and backgrounds.
     bank_posterior: Vec<f64>,
+    /// The background rises marginalised per bank, in fully mixed concentrations, 0 first
+    /// (see [`SteParams::background_rise`]).
+    backgrounds: Vec<f64>,
+    /// The fully mixed concentration in ppm under each bank's wind.
+    mixed_ppm: Vec<f64>,
+    /// Posterior of each background rise, summed over banks and candidates.
+    background_posterior: Vec<f64>,
     log_prior: Vec<f64>,
     measured: FeatureTrack<f64>,
     edf: FeatureTrack<f64>,
@@ -305,22 +346,41 @@ impl Estimator {
             .collect();
         let posterior = normalise(&log_prior);
         let banks = samplers.len();
+        let backgrounds = match params.background_rise {
+            0.0 => vec![0.0],
+            a => vec![0.0, 0.5 * a, a],
+        };
+        let slots = banks * backgrounds.len() * n;
         let track = FeatureTrack::new(params.feature, params.features);
         Ok(Self {
-            estimated: vec![track; banks * n],
+            estimated: vec![track; slots],
             measured: FeatureTrack::new(params.feature, params.features),
             edf: FeatureTrack::new(Feature::Rank, params.features),
             params,
             bank_posterior: vec![1.0 / banks as f64; banks],
+            background_posterior: vec![1.0 / backgrounds.len() as f64; backgrounds.len()],
+            backgrounds,
+            mixed_ppm: samplers
+                .iter()
+                .map(|s| s.layout().fully_mixed(1.0) * params.ppm_per_unit)
+                .collect(),
             samplers,
             log_prior,
             positions: Vec::new(),
             times: Vec::new(),
             posterior,
             fit: None,
-            lag_state: vec![0.0; banks * n],
+            lag_state: vec![0.0; slots],
             last_time: None,
         })
+    }
+
+    /// The background rises marginalised (in fully mixed concentrations: 0, then half and the
+    /// whole of [`SteParams::background_rise`]) with their posterior; `[[0, 1]]` without the
+    /// nuisance.
+    pub fn backgrounds(&self) -> Vec<[f64; 2]> {
+        let pairs = self.backgrounds.iter().zip(&self.background_posterior);
+        pairs.map(|(&a, &p)| [a, p]).collect()
     }
 
     /// The settings.
@@ -398,10 +458,20 @@ impl Estimator {
         let positions = self.samplers[0].len();
         let n_cand = self.estimated.len();
         let scale = self.params.ppm_per_unit as f32;
+        let per_bank = self.backgrounds.len() * positions;
+        let t0 = self.times.first().copied().unwrap_or(samples[0].t);
+        let tau = self.params.background_time_s;
         let mut gathered = vec![0.0f32; samples.len() * n_cand];
         for (s, row) in samples.iter().zip(gathered.chunks_mut(n_cand)) {
-            for (sampler, part) in self.samplers.iter().zip(row.chunks_mut(positions)) {
-                sampler.gather(s.x, s.y, scale, part);
+            let rise = 1.0 - (-(s.t - t0).max(0.0) / tau).exp();
+            let banks = self.samplers.iter().zip(&self.mixed_ppm);
+            for ((sampler, mixed), part) in banks.zip(row.chunks_mut(per_bank)) {
+                let (plume, rest) = part.split_at_mut(positions);
+                sampler.gather(s.x, s.y, scale, plume);
+                for (a, slot) in self.backgrounds[1..].iter().zip(rest.chunks_mut(positions)) {
+                    let b = (a * mixed * rise) as f32;
+                    slot.iter_mut().zip(&*plume).for_each(|(c, p)| *c = p + b);
+                }
             }
         }
         if let Some(taus) = self.params.sensor_lag_s {
@@ -471,7 +541,12 @@ impl Estimator {
         self.posterior = (0..positions)
             .map(|j| joint.iter().skip(j).step_by(positions).sum())
             .collect();
-        self.bank_posterior = joint.chunks(positions).map(|b| b.iter().sum()).collect();
+        self.bank_posterior = joint.chunks(per_bank).map(|b| b.iter().sum()).collect();
+        let levels = self.backgrounds.len();
+        let slot_mass: Vec<f64> = joint.chunks(positions).map(|b| b.iter().sum()).collect();
+        self.background_posterior = (0..levels)
+            .map(|l| slot_mass.iter().skip(l).step_by(levels).sum())
+            .collect();
         Ok(())
     }
 
@@ -543,6 +618,10 @@ impl Estimator {
 
 /// The default rank tolerance: model concentrations are trusted within a factor of 3.
 const RANK_TOLERANCE: f64 = 3.0;
+
+/// The default background rise for rank, in fully mixed concentrations (see
+/// [`SteParams::background_rise`]).
+const BACKGROUND_RISE: f64 = 0.5;
 
 /// Noise levels above the clean-air baseline below which readings tie.
 const CLEAN_AIR_NOISES: f64 = 3.0;

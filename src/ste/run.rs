@@ -279,6 +279,10 @@ pub struct Episode {
     /// The model wind speeds marginalised over (factors of the layout's) and their posterior
     /// at the end.
     pub wind_scales: Vec<[f64; 2]>,
+    /// The background rises marginalised over (in fully mixed concentrations, see
+    /// [`crate::ste::SteParams::background_rise`]) and their posterior at the end.
+    #[serde(default)]
+    pub backgrounds: Vec<[f64; 2]>,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
 }
@@ -551,6 +555,7 @@ pub fn run_episode(
             .zip(est.bank_posterior())
             .map(|((scale, _), &p)| [*scale, p])
             .collect(),
+        backgrounds: est.backgrounds(),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })
 }
