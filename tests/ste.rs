@@ -306,10 +306,13 @@ fn prior_is_uniform_on_its_support_and_zero_elsewhere() {
 fn posterior_matches_the_papers_formula_by_brute_force() {
     use plumenet::ste::posterior::clean_air_ties;
     let samples = synthetic_samples(7, 50);
-    let variants = Feature::ALL
-        .map(SteParams::for_feature)
-        .into_iter()
-        .chain([SteParams::for_feature(Feature::Rank).papers_rank()]);
+    let variants = Feature::ALL.map(SteParams::for_feature).into_iter().chain([
+        SteParams::for_feature(Feature::Rank).papers_rank(),
+        SteParams {
+            background_rise: 0.5,
+            ..SteParams::for_feature(Feature::Rank)
+        },
+    ]);
     for mut params in variants {
         let feature = params.feature;
         let ours = feature == Feature::Rank && params.clean_air_ties;

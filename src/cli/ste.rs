@@ -133,10 +133,9 @@ pub struct FeatureArgs {
     #[arg(long)]
     clean_air_window: Option<f64>,
     /// Marginalise a background of recirculated gas rising during the run by 0, half or the
-    /// whole of this many fully mixed concentrations q / (U H) (default: 0.5 for rank, 0 for
-    /// the other features; 0 turns it off).
-    #[arg(long, allow_negative_numbers = true)]
-    background_rise: Option<f64>,
+    /// whole of this many fully mixed concentrations q / (U H) (default 0: off).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    background_rise: f64,
     /// The time constant (s) of that background's rise, the room's air-exchange time.
     #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
     background_time: f64,
@@ -166,9 +165,7 @@ impl FeatureArgs {
         }
         p.rank_tolerance = self.rank_tolerance;
         p.clean_air_window_s = self.clean_air_window;
-        if let Some(a) = self.background_rise {
-            p.background_rise = a;
-        }
+        p.background_rise = self.background_rise;
         p.background_time_s = self.background_time;
         if self.paper_rank {
             p = p.papers_rank();
@@ -1084,8 +1081,8 @@ pub struct BenchSteArgs {
     /// bank, side by side: the cost of marginalising the wind speed.
     #[arg(long, value_delimiter = ',')]
     wind_scales: Vec<f64>,
-    /// Also time rank with the background nuisance at this rise (three rises; rank's default
-    /// is 0.5) against rank without it, side by side (0: not timed).
+    /// Also time rank with the background nuisance at this rise (three rises) against rank
+    /// without it, side by side (0: not timed).
     #[arg(long, default_value_t = 0.0)]
     background_rise: f64,
     /// Write the figures as JSON.
@@ -1127,10 +1124,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
     }
     // Each nuisance against rank over one bank without any, side by side: (what, world,
     // settings, values).
-    let rank = SteParams {
-        background_rise: 0.0,
-        ..SteParams::for_feature(Feature::Rank)
-    };
+    let rank = SteParams::for_feature(Feature::Rank);
     let mut nuisances = Vec::new();
     if a.wind_scales.len() > 1 {
         let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;

@@ -134,7 +134,7 @@ pub struct SteParams {
     /// concentrations plus `a * (1 - exp(-t / background_time_s))` (t from the first reading),
     /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
     /// concentrations ([`Layout::fully_mixed`]), each equally likely a priori and marginalised
-    /// in the posterior. 0 turns it off; rank's default is 0.5, the other features' 0.
+    /// in the posterior. 0 (the default) turns it off.
     #[serde(default)]
     pub background_rise: f64,
     /// The background's time constant (s), the room's air-exchange time.
@@ -162,11 +162,7 @@ impl SteParams {
             clean_air_ties: true,
             clean_air_window_s: None,
             rank_tolerance: RANK_TOLERANCE,
-            background_rise: if feature == Feature::Rank {
-                BACKGROUND_RISE
-            } else {
-                0.0
-            },
+            background_rise: 0.0,
             background_time_s: default_background_time_s(),
         }
     }
@@ -618,10 +614,6 @@ impl Estimator {
 
 /// The default rank tolerance: model concentrations are trusted within a factor of 3.
 const RANK_TOLERANCE: f64 = 3.0;
-
-/// The default background rise for rank, in fully mixed concentrations (see
-/// [`SteParams::background_rise`]).
-const BACKGROUND_RISE: f64 = 0.5;
 
 /// Noise levels above the clean-air baseline below which readings tie.
 const CLEAN_AIR_NOISES: f64 = 3.0;
