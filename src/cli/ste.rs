@@ -1139,20 +1139,18 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
     }
     let time = |w: &World, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
     let mut nuisance = Vec::new();
-    let one = match nuisances.is_empty() {
-        true => None,
-        false => Some(time(&world, rank)?),
-    };
-    for (what, w, params, k) in &nuisances {
-        let Some(one) = &one else { break };
-        let all = time(w, *params)?;
-        let per_added = (all.update_s - one.update_s) / (k - 1) as f64 / one.update_s;
-        println!(
-            "  rank over {k} {what}: update {:7.2} ms against {:.2} ms over one; each added value costs {per_added:.2}x one bank's update",
-            all.update_s * 1e3,
-            one.update_s * 1e3
-        );
-        nuisance.push(json!({"nuisance": what, "values": k, "update_ms": all.update_s * 1e3, "one_bank_ms": one.update_s * 1e3, "per_added_value": per_added}));
+    if !nuisances.is_empty() {
+        let one = time(&world, rank)?;
+        for (what, w, params, k) in &nuisances {
+            let all = time(w, *params)?;
+            let per_added = (all.update_s - one.update_s) / (k - 1) as f64 / one.update_s;
+            println!(
+                "  rank over {k} {what}: update {:7.2} ms against {:.2} ms over one; each added value costs {per_added:.2}x one bank's update",
+                all.update_s * 1e3,
+                one.update_s * 1e3
+            );
+            nuisance.push(json!({"nuisance": what, "values": k, "update_ms": all.update_s * 1e3, "one_bank_ms": one.update_s * 1e3, "per_added_value": per_added}));
+        }
     }
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     let ep = run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false)?;

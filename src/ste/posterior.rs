@@ -537,9 +537,9 @@ impl Estimator {
         self.posterior = (0..positions)
             .map(|j| joint.iter().skip(j).step_by(positions).sum())
             .collect();
-        self.bank_posterior = joint.chunks(per_bank).map(|b| b.iter().sum()).collect();
         let levels = self.backgrounds.len();
         let slot_mass: Vec<f64> = joint.chunks(positions).map(|b| b.iter().sum()).collect();
+        self.bank_posterior = slot_mass.chunks(levels).map(|b| b.iter().sum()).collect();
         self.background_posterior = (0..levels)
             .map(|l| slot_mass.iter().skip(l).step_by(levels).sum())
             .collect();
