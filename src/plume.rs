@@ -3,7 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use ndarray::Array3;
+use ndarray::{Array3, ArrayView2, ArrayViewMut2, Axis};
+use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::io;
@@ -18,6 +19,109 @@ pub struct PlumeBank {
     pub candidates: Vec<[f64; 2]>,
     /// Fields `[N, ny, nx]` (units/m^2 for a 1 unit/s source), zero in obstacle cells.
     pub fields: Array3<f32>,
+}
+
+/// The angles of [`PlumeBank::spread_over_directions`], in standard deviations: a Gaussian
+/// truncated at 1.5 of them, at seven equally spaced angles.
+const SPREAD_NODES: [f64; 7] = [-1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5];
+
+/// The largest angular spread (degrees): beyond it the wind would blow back to the inlet.
+pub const MAX_SPREAD_DEG: f64 = 90.0;
+
+impl PlumeBank {
+    /// Checks a spread for [`PlumeBank::spread_over_directions`].
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for a spread that is not in `0..=90` degrees.
+    pub fn check_spread(sigma_deg: f64) -> Result<()> {
+        if (0.0..=MAX_SPREAD_DEG).contains(&sigma_deg) {
+            Ok(())
+        } else {
+            Err(Error::Parameter(format!(
+                "a wind-direction spread must be between 0 and {MAX_SPREAD_DEG} degrees, got {sigma_deg}"
+            )))
+        }
+    }
+
+    /// The bank as it looks on average under a wind whose direction wanders: each candidate's
+    /// field averaged over copies of itself turned about the candidate by angles Gaussian with
+    /// standard deviation `sigma_deg` (truncated at 1.5 of them, seven angles, see
+    /// `SPREAD_NODES`). A turned copy is read at the nearest cell, folded back into the arena
+    /// at its walls (a wall reflects the plume); copies that land in an obstacle cell are left
+    /// out of that cell's average. Obstacle cells stay zero, and a spread of 0 is the bank
+    /// itself.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for a spread that is not in `0..=90` degrees, or a bank that does not
+    /// fit the layout's grid.
+    pub fn spread_over_directions(&self, layout: &Layout, sigma_deg: f64) -> Result<Self> {
+        Self::check_spread(sigma_deg)?;
+        let (n, ny, nx) = self.fields.dim();
+        if (ny, nx) != layout.shape() || n != self.candidates.len() {
+            return Err(Error::Parameter(format!(
+                "bank of shape {:?} with {} candidates does not fit the layout grid {:?}",
+                self.fields.dim(),
+                self.candidates.len(),
+                layout.shape()
+            )));
+        }
+        if sigma_deg == 0.0 {
+            return Ok(self.clone());
+        }
+        let turns: Vec<[f64; 3]> = SPREAD_NODES
+            .iter()
+            .map(|u| {
+                let (sin, cos) = (u * sigma_deg).to_radians().sin_cos();
+                [cos, sin, (-0.5 * u * u).exp()]
+            })
+            .collect();
+        let mut fields = Array3::zeros(self.fields.dim());
+        fields
+            .axis_iter_mut(Axis(0))
+            .into_par_iter()
+            .zip(self.fields.axis_iter(Axis(0)).into_par_iter())
+            .zip(self.candidates.par_iter())
+            .for_each(|((out, field), &source)| spread_one(layout, &turns, source, field, out));
+        Ok(Self {
+            candidates: self.candidates.clone(),
+            fields,
+        })
+    }
+}
+
+/// One field of [`PlumeBank::spread_over_directions`]: `turns` are `[cos, sin, weight]`.
+fn spread_one(
+    layout: &Layout,
+    turns: &[[f64; 3]],
+    [sx, sy]: [f64; 2],
+    field: ArrayView2<f32>,
+    mut out: ArrayViewMut2<f32>,
+) {
+    // Folds a coordinate back into [0, len], as a mirror at each wall would.
+    let fold = |v: f64, len: f64| {
+        let p = v.rem_euclid(2.0 * len);
+        if p > len { 2.0 * len - p } else { p }
+    };
+    let (width, height) = (layout.width(), layout.height());
+    for ((j, i), value) in out.indexed_iter_mut() {
+        if layout.is_solid(j, i) {
+            continue;
+        }
+        let (x, y) = layout.cell_centre(j, i);
+        let (dx, dy) = (x - sx, y - sy);
+        let (mut sum, mut weights) = (0.0, 0.0);
+        for &[cos, sin, weight] in turns {
+            let px = fold(sx + cos * dx - sin * dy, width);
+            let py = fold(sy + sin * dx + cos * dy, height);
+            let (jj, ii) = layout.cell_of(px, py);
+            if !layout.is_solid(jj, ii) {
+                sum += weight * f64::from(field[[jj, ii]]);
+                weights += weight;
+            }
+        }
+        // The unturned copy is the cell itself, which is free: weights > 0.
+        *value = (sum / weights) as f32;
+    }
 }
 
 /// A model that predicts the mean concentration field of a source in a layout.

@@ -680,6 +680,7 @@ fn bad_ste_input_fails_cleanly() {
             "0",
             "background time constant must be a positive",
         ),
+        ("--wind-spreads", "0,120", "between 0 and 90 degrees"),
     ] {
         let args = [
             "localize",

@@ -499,3 +499,108 @@ fn the_background_posterior_tells_a_rising_background_from_none() {
     ste.background_time_s = 0.0;
     assert!(replay(world.samplers(), ste, r, &samples).is_err());
 }
+
+/// The spread bank is closer to the meandering reality's time average: across the wind, a few
+/// metres downwind of the source, the filament plume under a 30 degree meander (averaged over
+/// 40 correlation times) is nearer the solver's plume spread by 30 degrees than the solver's
+/// own. A spread of 0 is the bank itself, and spreads outside 0..=90 degrees are refused.
+#[test]
+fn the_spread_bank_is_nearer_the_meandering_plumes_average() {
+    use plumenet::plume::{PhysicsSolver, PlumeBank, PlumeModel};
+    let l = empty_tunnel();
+    let source = [3.0, 2.0];
+    let bank = PhysicsSolver.bank(&l, &[source]).unwrap();
+    assert_eq!(bank.spread_over_directions(&l, 0.0).unwrap(), bank);
+    for bad in [-1.0, 91.0, f64::NAN] {
+        assert!(bank.spread_over_directions(&l, bad).is_err(), "{bad}");
+    }
+    let spread = bank.spread_over_directions(&l, 30.0).unwrap();
+    let w = WindField::solve(&l).unwrap();
+    let meander = Mismatch {
+        meander_deg: 30.0,
+        ..Mismatch::NONE
+    };
+    let reality = Reality::new(&l, &w, meander).unwrap();
+    for x in [4.5, 6.0] {
+        let mut plume = reality.plume(source, 0.1, 7).unwrap();
+        plume.advance(60.0);
+        let (_, i) = l.cell_of(x, 0.0);
+        let ys: Vec<f64> = (0..l.ny()).map(|j| l.cell_centre(j, i).1).collect();
+        let steps = 8000;
+        let mut mean = vec![0.0; ys.len()];
+        for _ in 0..steps {
+            plume.step();
+            for (m, &y) in mean.iter_mut().zip(&ys) {
+                *m += plume.concentration_at(x, y) / f64::from(steps);
+            }
+        }
+        // Relative L2 distance of a bank's cross-wind profile from the time average.
+        let distance = |b: &PlumeBank| {
+            let num: f64 = (0..ys.len())
+                .map(|j| (f64::from(b.fields[[0, j, i]]) - mean[j]).powi(2))
+                .sum();
+            (num / mean.iter().map(|r| r * r).sum::<f64>()).sqrt()
+        };
+        let (plain, spread) = (distance(&bank), distance(&spread));
+        assert!(
+            spread < 0.75 * plain,
+            "{x} m: the spread plume is {spread} off the meander's average, the plain {plain}"
+        );
+    }
+}
+
+/// The spread's posterior: replaying surveys over banks spread by 0 and 30 degrees puts most of
+/// the mass on no spread when the wind holds its direction (every source and seed here), and on
+/// the spread when it wanders (for a source mid-arena; a source near a wall or an obstacle can
+/// hide the wander); episodes report the spread's posterior.
+#[test]
+fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
+    use plumenet::ste::replay::replay;
+    let world = crate::ste::world().with_wind_spreads(&[0.0, 30.0]).unwrap();
+    assert_eq!(world.banks.len(), 2);
+    assert!(crate::ste::world().with_wind_spreads(&[]).is_err());
+    assert!(crate::ste::world().with_wind_spreads(&[0.0, 95.0]).is_err());
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let wandering = world
+        .with_mismatch(Mismatch {
+            meander_deg: 30.0,
+            ..Mismatch::NONE
+        })
+        .unwrap();
+    let spread_mass = |reality: &plumenet::ste::World, source, seed| {
+        let samples = fly(
+            &reality.reality,
+            &survey.path,
+            source,
+            &config.flight(),
+            seed,
+        )
+        .unwrap();
+        let est = replay(
+            world.samplers(),
+            config.ste,
+            config.robot.radius_m,
+            &samples,
+        )
+        .unwrap();
+        let w = world.marginal(est.bank_posterior(), |b| b.spread_deg);
+        assert_eq!(w.len(), 2);
+        assert!((w[0][1] + w[1][1] - 1.0).abs() < 1e-12);
+        w[1][1]
+    };
+    for seed in 1..=3 {
+        for source in [[4.625, 2.375], [3.125, 1.125], [8.125, 3.125]] {
+            let p = spread_mass(&world, source, seed);
+            assert!(p < 0.5, "steady wind, {source:?}, seed {seed}: spread {p}");
+        }
+        let p = spread_mass(&wandering, [4.625, 2.375], seed);
+        assert!(p > 0.5, "wandering wind, seed {seed}: spread {p}");
+    }
+    let ep =
+        plumenet::ste::run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false).unwrap();
+    assert_eq!(ep.wind_spreads.len(), 2);
+    assert_eq!((ep.wind_spreads[0][0], ep.wind_spreads[1][0]), (0.0, 30.0));
+    assert_eq!(ep.wind_scales.len(), 1);
+    assert!((ep.wind_scales[0][1] - 1.0).abs() < 1e-12);
+}

@@ -51,6 +51,11 @@ pub struct PlumeArgs {
     /// likely a priori), e.g. 0.5,1,2; the default 1 trusts the layout's speed.
     #[arg(long, value_delimiter = ',', default_values_t = [1.0])]
     wind_scales: Vec<f64>,
+    /// Spreads of the wind's direction to marginalise over (degrees; each bank's plumes averaged
+    /// over winds turned about the source, Gaussian with this standard deviation), e.g. 0,30;
+    /// the default 0 trusts the layout's direction.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0])]
+    wind_spreads: Vec<f64>,
 }
 
 impl PlumeArgs {
@@ -89,6 +94,11 @@ impl PlumeArgs {
             world
         } else {
             world.with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
+        };
+        let world = if self.wind_spreads == [0.0] {
+            world
+        } else {
+            world.with_wind_spreads(&self.wind_spreads)?
         };
         let note = format!(
             "plume model {}: {} candidates{}",
@@ -523,12 +533,6 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         1
     };
     let (est, trace) = replay_in_steps(world.samplers(), params, a.robot_radius, &samples, steps)?;
-    let wind_scales: Vec<[f64; 2]> = world
-        .banks
-        .iter()
-        .zip(est.bank_posterior())
-        .map(|((scale, _), &p)| [*scale, p])
-        .collect();
     let estimate = est.estimate();
     let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
     let baselines = Baselines::new(&world.layout, &samples, source)?;
@@ -597,7 +601,9 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         let mut report = json!({
             "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
-            "baselines": baselines, "wind_scales": wind_scales, "backgrounds": est.backgrounds(), "posterior": posterior,
+            "baselines": baselines, "backgrounds": est.backgrounds(), "posterior": posterior,
+            "wind_scales": world.marginal(est.bank_posterior(), |b| b.wind_scale),
+            "wind_spreads": world.marginal(est.bank_posterior(), |b| b.spread_deg),
         });
         if let (Some(s), Some(e)) = (source, error_m) {
             report["source"] = json!(s);
@@ -1081,6 +1087,10 @@ pub struct BenchSteArgs {
     /// bank, side by side: the cost of marginalising the wind speed.
     #[arg(long, value_delimiter = ',')]
     wind_scales: Vec<f64>,
+    /// Also time rank over one bank per spread of the wind's direction (degrees, e.g. 0,30)
+    /// against one bank, side by side: the cost of marginalising the direction's spread.
+    #[arg(long, value_delimiter = ',')]
+    wind_spreads: Vec<f64>,
     /// Also time rank with the background nuisance at this rise (three rises) against rank
     /// without it, side by side (0: not timed).
     #[arg(long, default_value_t = 0.0)]
@@ -1129,6 +1139,10 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
     if a.wind_scales.len() > 1 {
         let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
         nuisances.push(("wind-speed banks", banks, rank, a.wind_scales.len()));
+    }
+    if a.wind_spreads.len() > 1 {
+        let banks = world.with_wind_spreads(&a.wind_spreads)?;
+        nuisances.push(("wind-spread banks", banks, rank, a.wind_spreads.len()));
     }
     if a.background_rise > 0.0 {
         let with = SteParams {

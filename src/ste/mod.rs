@@ -29,6 +29,6 @@ pub use planner::{Planner, PlannerKind};
 pub use posterior::{Estimator, Sample, Sigmas, SteParams, Termination};
 pub use reality::{Mismatch, Reality};
 pub use robot::{Occupancy, RobotParams, Sampling};
-pub use run::{Episode, EpisodeConfig, World, run_episode};
+pub use run::{Bank, Episode, EpisodeConfig, World, run_episode};
 pub use sampler::FieldSampler;
 pub use sensor::{MoxParams, MoxSensor, SensorPreset};

@@ -22,7 +22,7 @@ use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::Layout;
 use crate::physics::wind::WindField;
-use crate::plume::{PlumeModel, cached_bank};
+use crate::plume::{PlumeBank, PlumeModel, cached_bank};
 use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
 use crate::ste::planner::PlannerKind;
@@ -40,6 +40,29 @@ pub const PRIOR_BAND_M: f64 = 0.25;
 /// time constants, so the sensor has settled.
 pub const SENSOR_SETTLE_S: f64 = 20.0;
 
+/// One plume bank the estimator weighs, with the nuisance values it was made for.
+#[derive(Debug, Clone)]
+pub struct Bank {
+    /// The model's wind speed, as a factor of the layout's.
+    pub wind_scale: f64,
+    /// The spread of the wind's direction (degrees, see
+    /// [`PlumeBank::spread_over_directions`]).
+    pub spread_deg: f64,
+    /// The fields, ready for sampling.
+    pub sampler: Arc<FieldSampler>,
+}
+
+impl Bank {
+    /// The layout's own bank: its wind speed, no spread.
+    fn plain(sampler: Arc<FieldSampler>) -> Self {
+        Self {
+            wind_scale: 1.0,
+            spread_deg: 0.0,
+            sampler,
+        }
+    }
+}
+
 /// The world a run happens in: the layout, its wind, the plume banks of the model, and the
 /// reality the robot senses.
 #[derive(Debug, Clone)]
@@ -50,9 +73,9 @@ pub struct World {
     pub wind: WindField,
     /// The plume model's bank at the layout's wind speed, ready for sampling.
     pub sampler: Arc<FieldSampler>,
-    /// The model wind speeds the estimator marginalises over, as factors of the layout's, with
-    /// their banks (`[(1, sampler)]` unless [`World::with_wind_scales`] was used).
-    pub banks: Vec<(f64, Arc<FieldSampler>)>,
+    /// The banks the estimator marginalises over: the layout's alone unless
+    /// [`World::with_wind_scales`] or [`World::with_wind_spreads`] was used.
+    pub banks: Vec<Bank>,
     /// What the robot senses (the model on average unless a [`Mismatch`] is set).
     pub reality: Arc<Reality>,
 }
@@ -84,7 +107,7 @@ impl World {
             Self {
                 layout,
                 wind,
-                banks: vec![(1.0, Arc::clone(&sampler))],
+                banks: vec![Bank::plain(Arc::clone(&sampler))],
                 sampler,
                 reality,
             },
@@ -94,7 +117,8 @@ impl World {
 
     /// The same world with the estimator marginalising over the model's wind speed: one bank
     /// of `model` for each factor in `scales` (the layout's speed times the factor; 1 reuses
-    /// the layout's own bank), each equally likely a priori.
+    /// the layout's own bank), each equally likely a priori. These banks replace the world's
+    /// (spread them after, with [`World::with_wind_spreads`]).
     ///
     /// # Errors
     /// [`Error::Parameter`] for no factor, or a factor that is not positive and finite; the
@@ -114,13 +138,18 @@ impl World {
         let banks = scales
             .iter()
             .map(|&scale| {
-                if scale == 1.0 {
-                    return Ok((scale, Arc::clone(&self.sampler)));
-                }
-                let mut spec = self.layout.spec().clone();
-                spec.wind.speed_mps *= scale;
-                let layout = spec.check()?;
-                Ok((scale, sampler_of(model, &layout, candidates, cache)?.0))
+                let sampler = if scale == 1.0 {
+                    Arc::clone(&self.sampler)
+                } else {
+                    let mut spec = self.layout.spec().clone();
+                    spec.wind.speed_mps *= scale;
+                    let layout = spec.check()?;
+                    sampler_of(model, &layout, candidates, cache)?.0
+                };
+                Ok(Bank {
+                    wind_scale: scale,
+                    ..Bank::plain(sampler)
+                })
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(Self {
@@ -129,9 +158,67 @@ impl World {
         })
     }
 
+    /// The same world with the estimator marginalising over the spread of the wind's
+    /// direction: each of the world's banks once per spread in `spreads` (degrees; each bank's
+    /// fields averaged over turned winds, see [`PlumeBank::spread_over_directions`]; 0 keeps
+    /// the bank as it is), each equally likely a priori.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for no spread, or a spread outside `0..=90` degrees.
+    pub fn with_wind_spreads(&self, spreads: &[f64]) -> Result<Self> {
+        if spreads.is_empty() {
+            return Err(Error::Parameter(
+                "give at least one wind-direction spread".into(),
+            ));
+        }
+        for &spread_deg in spreads {
+            PlumeBank::check_spread(spread_deg)?;
+        }
+        let mut banks = Vec::with_capacity(self.banks.len() * spreads.len());
+        for bank in &self.banks {
+            let fields = spreads
+                .iter()
+                .any(|&s| s != 0.0)
+                .then(|| bank.sampler.bank());
+            for &spread_deg in spreads {
+                let sampler = match &fields {
+                    Some(fields) if spread_deg != 0.0 => {
+                        let spread = fields.spread_over_directions(&self.layout, spread_deg)?;
+                        Arc::new(FieldSampler::new(&self.layout, &spread)?)
+                    }
+                    _ => Arc::clone(&bank.sampler),
+                };
+                banks.push(Bank {
+                    spread_deg,
+                    sampler,
+                    ..*bank
+                });
+            }
+        }
+        Ok(Self {
+            banks,
+            ..self.clone()
+        })
+    }
+
     /// The banks' samplers, in the order of [`World::banks`].
     pub fn samplers(&self) -> Vec<Arc<FieldSampler>> {
-        self.banks.iter().map(|(_, s)| Arc::clone(s)).collect()
+        self.banks.iter().map(|b| Arc::clone(&b.sampler)).collect()
+    }
+
+    /// The posterior of one nuisance, `value` of each bank (its wind scale or spread), summed
+    /// over the others: `[value, probability]` in the order the values first appear in
+    /// [`World::banks`], from the estimator's bank posterior (in that order too).
+    pub fn marginal(&self, bank_posterior: &[f64], value: fn(&Bank) -> f64) -> Vec<[f64; 2]> {
+        let mut marginal: Vec<[f64; 2]> = Vec::new();
+        for (bank, &p) in self.banks.iter().zip(bank_posterior) {
+            let v = value(bank);
+            match marginal.iter_mut().find(|m| m[0] == v) {
+                Some(m) => m[1] += p,
+                None => marginal.push([v, p]),
+            }
+        }
+        marginal
     }
 
     /// The same world (layout and banks) with reality departing from the model by `mismatch`.
@@ -279,6 +366,10 @@ pub struct Episode {
     /// The model wind speeds marginalised over (factors of the layout's) and their posterior
     /// at the end.
     pub wind_scales: Vec<[f64; 2]>,
+    /// The spreads of the wind's direction marginalised over (degrees) and their posterior at
+    /// the end.
+    #[serde(default)]
+    pub wind_spreads: Vec<[f64; 2]>,
     /// The background rises marginalised over (in fully mixed concentrations, see
     /// [`crate::ste::SteParams::background_rise`]) and their posterior at the end.
     #[serde(default)]
@@ -549,12 +640,8 @@ pub fn run_episode(
         posterior: est.posterior().to_vec(),
         baselines,
         reality: world.reality.mismatch(),
-        wind_scales: world
-            .banks
-            .iter()
-            .zip(est.bank_posterior())
-            .map(|((scale, _), &p)| [*scale, p])
-            .collect(),
+        wind_scales: world.marginal(est.bank_posterior(), |b| b.wind_scale),
+        wind_spreads: world.marginal(est.bank_posterior(), |b| b.spread_deg),
         backgrounds: est.backgrounds(),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })

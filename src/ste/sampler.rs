@@ -6,7 +6,7 @@
 //! between the four nearest cell centres; solid cells are left out and the weights of the others
 //! renormalised, so values next to an obstacle are not dragged towards its zero).
 
-use ndarray::Axis;
+use ndarray::{Array3, Axis};
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
@@ -72,6 +72,18 @@ impl FieldSampler {
     /// Whether there is no candidate (never true for a constructed sampler).
     pub fn is_empty(&self) -> bool {
         self.candidates.is_empty()
+    }
+
+    /// The bank this sampler was made from.
+    pub fn bank(&self) -> PlumeBank {
+        let (ny, nx) = self.layout.shape();
+        let n = self.len();
+        let fields =
+            Array3::from_shape_fn((n, ny, nx), |(k, j, i)| self.by_cell[(j * nx + i) * n + k]);
+        PlumeBank {
+            candidates: self.candidates.clone(),
+            fields,
+        }
     }
 
     /// Interpolation stencil of a point: up to four (cell, weight) pairs, weights summing to 1.
