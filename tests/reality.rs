@@ -500,8 +500,8 @@ fn the_background_posterior_tells_a_rising_background_from_none() {
     assert!(replay(world.samplers(), ste, r, &samples).is_err());
 }
 
-/// The spread bank is closer to the meandering reality's time average: across the wind, a few
-/// metres downwind of the source, the filament plume under a 30 degree meander (averaged over
+/// The spread bank is closer to the meandering reality's time average: across the wind, 1.5 and
+/// 3 m downwind of the source, the filament plume under a 30 degree meander (averaged over
 /// 40 correlation times) is nearer the solver's plume spread by 30 degrees than the solver's
 /// own. A spread of 0 is the bank itself, and spreads outside 0..=90 degrees are refused.
 #[test]
@@ -521,7 +521,9 @@ fn the_spread_bank_is_nearer_the_meandering_plumes_average() {
         ..Mismatch::NONE
     };
     let reality = Reality::new(&l, &w, meander).unwrap();
-    for x in [4.5, 6.0] {
+    // `cargo test --release spread_bank -- --nocapture` prints the profiles; 9 m is printed only.
+    eprintln!("fully mixed: {:.2}", l.fully_mixed(1.0));
+    for x in [4.5, 6.0, 9.0] {
         let mut plume = reality.plume(source, 0.1, 7).unwrap();
         plume.advance(60.0);
         let (_, i) = l.cell_of(x, 0.0);
@@ -541,9 +543,24 @@ fn the_spread_bank_is_nearer_the_meandering_plumes_average() {
                 .sum();
             (num / mean.iter().map(|r| r * r).sum::<f64>()).sqrt()
         };
+        let profile = |v: Vec<f64>| v.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>();
+        let of = |b: &PlumeBank| {
+            profile(
+                (0..ys.len())
+                    .map(|j| f64::from(b.fields[[0, j, i]]))
+                    .collect(),
+            )
+        };
+        eprintln!(
+            "x = {x} m, y from 0 to 4 m:\n  meandering reality {:?}\n  plain model {:?}\n  spread model {:?}",
+            profile(mean.clone()),
+            of(&bank),
+            of(&spread)
+        );
         let (plain, spread) = (distance(&bank), distance(&spread));
+        eprintln!("  relative L2: plain {plain:.2}, spread {spread:.2}");
         assert!(
-            spread < 0.75 * plain,
+            x > 8.0 || spread < 0.75 * plain,
             "{x} m: the spread plume is {spread} off the meander's average, the plain {plain}"
         );
     }
