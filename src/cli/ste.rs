@@ -90,16 +90,10 @@ impl PlumeArgs {
         };
         let cache = (!self.no_cache).then_some(self.cache_dir.as_path());
         let (world, hit) = World::build(layout, model.as_ref(), self.spacing, cache)?;
-        let world = if self.wind_scales == [1.0] {
-            world
-        } else {
-            world.with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
-        };
-        let world = if self.wind_spreads == [0.0] {
-            world
-        } else {
-            world.with_wind_spreads(&self.wind_spreads)?
-        };
+        // The defaults (scale 1, spread 0) keep the layout's own bank.
+        let world = world
+            .with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
+            .with_wind_spreads(&self.wind_spreads)?;
         let note = format!(
             "plume model {}: {} candidates{}",
             model.name(),
