@@ -137,6 +137,13 @@ pub trait PlumeModel {
     /// # Errors
     /// [`Error::Source`] for a candidate outside free space, or the model's own failures.
     fn bank(&self, layout: &Layout, candidates: &[[f64; 2]]) -> Result<PlumeBank>;
+
+    /// The factor within which the model's mean concentrations are known, as the rank
+    /// feature's expected ranks take it ([`crate::ste::SteParams::model_rank_factor`]): 1, exact,
+    /// unless the model says otherwise.
+    fn rank_factor(&self) -> f64 {
+        1.0
+    }
 }
 
 /// The physics model: steady wind plus advection-diffusion, exact but slower for new layouts.

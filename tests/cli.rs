@@ -391,6 +391,32 @@ fn localize_writes_the_run_and_its_pictures() {
     let herr = (best["x"].as_f64().unwrap() - 4.1).hypot(best["y"].as_f64().unwrap() - 2.1);
     assert!((highest["error_m"].as_f64().unwrap() - herr).abs() < 1e-9);
     assert_eq!(run["reality"]["wind_scale"], 1.0);
+    // The solver's bank is exact: its ranks are compared as they are; PlumeNet's are known
+    // only within its factor, unless the flag says otherwise.
+    assert_eq!(run["config"]["ste"]["model_rank_factor"], 1.0);
+    let surrogate_json = tmp.path().join("plumenet.json");
+    for (flags, factor) in [(&[][..], 3.0), (&["--model-rank-factor", "1.5"][..], 1.5)] {
+        let mut args = vec![
+            "localize",
+            "--no-cache",
+            "--spacing",
+            "2",
+            "--source",
+            "4.1,2.1",
+            "--max-iterations",
+            "1",
+            "--json",
+            surrogate_json.to_str().unwrap(),
+        ];
+        args.extend_from_slice(flags);
+        plumenet_ok(&args);
+        let run: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&surrogate_json).unwrap()).unwrap();
+        assert_eq!(
+            run["config"]["ste"]["model_rank_factor"], factor,
+            "{flags:?}"
+        );
+    }
 
     let iterations = run["iterations"].as_u64().unwrap() as usize;
     assert!((1..=4).contains(&iterations));
@@ -681,6 +707,11 @@ fn bad_ste_input_fails_cleanly() {
             "background time constant must be a positive",
         ),
         ("--wind-spreads", "0,120", "between 0 and 90 degrees"),
+        (
+            "--model-rank-factor",
+            "0.5",
+            "rank factor must be at least 1",
+        ),
     ] {
         let args = [
             "localize",

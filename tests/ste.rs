@@ -167,36 +167,61 @@ proptest! {
         }
     }
 
-    /// The share of values within a factor of each value, against a double loop.
+    /// The share of values within one factor of each value, and each value's expected rank
+    /// within another, against a double loop; the expected ranks average 1/2 + 1/(2n), as exact
+    /// ranks of distinct values do, and with the factor 1 they are the exact ranks.
     #[test]
-    fn shares_within_a_factor_equal_brute_force(
+    fn shares_and_expected_ranks_within_a_factor_equal_brute_force(
         values in proptest::collection::vec(prop_oneof![Just(0.0f32), 0.0f32..100.0], 1..80),
         ratio in 1.0f64..5.0,
+        rank_ratio in 1.0f64..5.0,
         split in 0usize..80,
     ) {
         let mut track = FeatureTrack::new(Feature::Rank, FeatureParams::default());
         let split = split.min(values.len());
         track.extend(&values[..split]);
         track.extend(&values[split..]);
-        let n = values.len() as f32;
-        let expected: Vec<f32> = values
+        let n = values.len() as f64;
+        let within = |v: f64, u: f64, r: f64| (v / r..=v * r).contains(&u);
+        let brute: Vec<(f64, f64)> = values
             .iter()
-            .map(|&v| {
+            .zip(track.features())
+            .map(|(&v, &exact)| {
                 let v = f64::from(v);
                 if v <= 0.0 {
-                    return 0.0;
+                    return (0.0, f64::from(exact));
                 }
-                let near = values
+                let near = values.iter().filter(|&&u| within(v, f64::from(u), ratio)).count();
+                let below: f64 = values
                     .iter()
-                    .filter(|&&u| (v / ratio..=v * ratio).contains(&f64::from(u)))
-                    .count();
-                near as f32 / n
+                    .map(|&u| {
+                        let u = f64::from(u);
+                        match () {
+                            _ if u == v => 0.5,
+                            _ if u < v / rank_ratio => 1.0,
+                            _ if within(v, u, rank_ratio) => {
+                                0.5 + (v / u).ln() / (2.0 * rank_ratio.ln())
+                            }
+                            _ => 0.0,
+                        }
+                    })
+                    .sum();
+                (near as f64 / n, (below + 0.5) / n)
             })
             .collect();
-        let mut shares = vec![f32::NAN; values.len()];
-        track.for_each_share(ratio, |i, w| shares[i] = w);
-        for (i, (a, b)) in shares.iter().zip(&expected).enumerate() {
-            prop_assert!((a - b).abs() <= 1e-6, "value {}: share {} vs {}", i, a, b);
+        let mut ours = vec![(f32::NAN, f32::NAN); values.len()];
+        track.for_each_within(ratio, rank_ratio, |i, w, e| ours[i] = (w, e));
+        for (i, (a, b)) in ours.iter().zip(&brute).enumerate() {
+            prop_assert!((f64::from(a.0) - b.0).abs() <= 1e-6, "value {}: share {} vs {}", i, a.0, b.0);
+            prop_assert!((f64::from(a.1) - b.1).abs() <= 1e-5, "value {}: expected rank {} vs {}", i, a.1, b.1);
+        }
+        if values.iter().all(|&v| v > 0.0) {
+            let mean = ours.iter().map(|p| f64::from(p.1)).sum::<f64>() / n;
+            prop_assert!((mean - (0.5 + 0.5 / n)).abs() <= 1e-5, "mean expected rank {}", mean);
+        }
+        track.for_each_within(ratio, 1.0, |i, _, e| ours[i].1 = e);
+        for (i, (a, &exact)) in ours.iter().zip(track.features()).enumerate() {
+            prop_assert_eq!(a.1, exact, "value {} with the factor 1", i);
         }
     }
 
@@ -312,6 +337,10 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
             background_rise: 0.5,
             ..SteParams::for_feature(Feature::Rank)
         },
+        SteParams {
+            model_rank_factor: 3.0,
+            ..SteParams::for_feature(Feature::Rank)
+        },
     ]);
     for mut params in variants {
         let feature = params.feature;
@@ -375,8 +404,29 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                         .map(|(r, s)| f64::from(r[k] + (level * mixed * rise(s.t)) as f32))
                         .map(|c| if c < floor { 0.0 } else { c })
                         .collect();
-                    let e = features(&c);
                     let r = params.rank_tolerance;
+                    let mut e = features(&c);
+                    let r_model = params.model_rank_factor;
+                    if ours && r_model > 1.0 {
+                        // Expected ranks: every other estimate within the factor counts as
+                        // below with a chance linear in the log-ratio.
+                        for (ei, &ci) in e.iter_mut().zip(&c).filter(|(_, ci)| **ci > 0.0) {
+                            let below: f64 = c
+                                .iter()
+                                .map(|&cj| {
+                                    if cj < ci / r_model {
+                                        1.0
+                                    } else if cj <= ci * r_model {
+                                        0.5 + (ci / cj).ln() / (2.0 * r_model.ln())
+                                    } else {
+                                        0.0
+                                    }
+                                })
+                                .sum();
+                            // Itself counts 1, not the 1/2 of the sum.
+                            *ei = (below + 0.5) / n;
+                        }
+                    }
                     let share = |ci: f64| {
                         let near = c.iter().filter(|&&cj| (ci / r..=ci * r).contains(&cj));
                         if ours && ci > 0.0 {

@@ -132,6 +132,11 @@ pub struct FeatureArgs {
     /// share of estimates within it adds to each rank's model error (1 turns it off).
     #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
     rank_tolerance: f64,
+    /// Rank only: the factor within which the plume model's concentrations are known when
+    /// ranked; each candidate's expected ranks under that uncertainty are compared (default:
+    /// the model's own, 3 for PlumeNet and 1 for the solver; 1 compares exact ranks).
+    #[arg(long)]
+    model_rank_factor: Option<f64>,
     /// Rank only: follow a drifting clean-air baseline, taken in a centred window of this many
     /// seconds (default: one baseline for the whole run).
     #[arg(long)]
@@ -143,15 +148,16 @@ pub struct FeatureArgs {
     /// The time constant (s) of that background's rise, the room's air-exchange time.
     #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
     background_time: f64,
-    /// Rank only: the paper's rank likelihood, without our clean-air ties, rank tolerance and
-    /// background nuisance (exactly invariant under every increasing transform of the readings).
-    #[arg(long, conflicts_with_all = ["rank_tolerance", "background_rise"])]
+    /// Rank only: the paper's rank likelihood, without our clean-air ties, rank tolerance,
+    /// expected model ranks and background nuisance (exactly invariant under every increasing transform of the readings).
+    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise"])]
     paper_rank: bool,
 }
 
 impl FeatureArgs {
-    /// The estimator settings for a feature with these overrides.
-    pub fn params(&self, feature: Feature) -> SteParams {
+    /// The estimator settings for a feature in a world (whose plume model gives the default
+    /// model rank factor) with these overrides.
+    pub fn params(&self, feature: Feature, world: &World) -> SteParams {
         let mut p = SteParams::for_feature(feature);
         let d = Sigmas::default_for(feature);
         p.sigmas = Sigmas {
@@ -168,6 +174,7 @@ impl FeatureArgs {
             p.sensor_lag_s = None;
         }
         p.rank_tolerance = self.rank_tolerance;
+        p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
         p.background_rise = self.background_rise;
         p.background_time_s = self.background_time;
@@ -408,7 +415,9 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let (world, model_name) = a.plume.world(layout)?;
     let world = world.with_mismatch(mismatch)?;
     let feature = Feature::from(a.feature);
-    let config = a.run.config(a.features.params(feature), a.sensor.into());
+    let config = a
+        .run
+        .config(a.features.params(feature, &world), a.sensor.into());
     let start = a.trial.start(&world.layout, &config.robot, a.seed)?;
     let keep_posteriors = a.png_dir.is_some() || a.html.is_some();
     let episode = run_episode(&world, &config, source, start, a.seed, keep_posteriors)?;
@@ -520,7 +529,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     }
     let (world, model_name) = a.plume.world(layout)?;
     let feature = Feature::from(a.feature);
-    let params = a.features.params(feature);
+    let params = a.features.params(feature, &world);
     let steps = if a.html.is_some() {
         a.html_steps as usize
     } else {
@@ -634,12 +643,12 @@ pub struct SessionArgs {
 }
 
 impl SessionArgs {
-    /// The session's settings.
-    fn config(&self) -> plumenet::ste::session::SessionConfig {
+    /// The session's settings in a world.
+    fn config(&self, world: &World) -> plumenet::ste::session::SessionConfig {
         let mut config = self
             .run
             .config(
-                self.features.params(self.feature.into()),
+                self.features.params(self.feature.into(), world),
                 SensorPreset::SensorII,
             )
             .session(self.seed);
@@ -656,7 +665,7 @@ impl SessionArgs {
     /// A fresh session, with the layout's and the model's names.
     fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
         let (world, model) = self.world()?;
-        let session = plumenet::ste::session::Session::new(&world, self.config())?;
+        let session = plumenet::ste::session::Session::new(&world, self.config(&world))?;
         Ok((session, layout_name(&self.layout), model))
     }
 }
@@ -996,7 +1005,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
                     site,
                     &plan,
                     a.seed,
-                    |f, s| a.run.config(a.overrides.params(f), s),
+                    |f, s| a.run.config(a.overrides.params(f, &world), s),
                     || bar.inc(1),
                 )?);
                 bar.finish_and_clear();
@@ -1105,13 +1114,20 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         world.sampler.len()
     );
     let mut report = Vec::new();
+    let rank = SteParams::for_feature(Feature::Rank);
     let variants = Feature::ALL
         .map(|f| (f.name(), SteParams::for_feature(f)))
         .into_iter()
-        .chain([(
-            "rank-paper",
-            SteParams::for_feature(Feature::Rank).papers_rank(),
-        )]);
+        .chain([
+            (
+                "rank-exact",
+                SteParams {
+                    model_rank_factor: 1.0,
+                    ..rank
+                },
+            ),
+            ("rank-paper", rank.papers_rank()),
+        ]);
     for (name, params) in variants {
         let t = plumenet::bench::time_ste_update(&world, params, a.samples, a.batch, a.repeats)?;
         println!(
@@ -1128,7 +1144,6 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
     }
     // Each nuisance against rank over one bank without any, side by side: (what, world,
     // settings, values).
-    let rank = SteParams::for_feature(Feature::Rank);
     let mut nuisances = Vec::new();
     if a.wind_scales.len() > 1 {
         let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
@@ -1292,7 +1307,7 @@ pub struct BenchServeArgs {
 
 pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
     let (world, model) = a.session.world()?;
-    let config = a.session.config();
+    let config = a.session.config(&world);
     println!(
         "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
         world.sampler.len()

@@ -89,6 +89,38 @@ pub trait Reading: Copy + PartialOrd + Into<f64> + Send + Sync {}
 impl Reading for f32 {}
 impl Reading for f64 {}
 
+/// The positions `lo..=hi` of a sorted list of logarithms within `± half_width` of one of
+/// them; moved forward as that one moves up the list.
+struct Window {
+    half_width: f64,
+    lo: usize,
+    hi: usize,
+}
+
+impl Window {
+    /// A window for a factor `ratio` (`half_width = ln ratio`).
+    fn new(ratio: f64) -> Self {
+        Self {
+            half_width: ratio.ln(),
+            lo: 0,
+            hi: 0,
+        }
+    }
+
+    /// The window around position `p`, which must not lie below the previous call's.
+    fn around(&mut self, logs: &[f64], p: usize) -> (usize, usize) {
+        let l = logs[p];
+        while logs[self.lo] < l - self.half_width {
+            self.lo += 1;
+        }
+        self.hi = self.hi.max(p);
+        while self.hi + 1 < logs.len() && logs[self.hi + 1] <= l + self.half_width {
+            self.hi += 1;
+        }
+        (self.lo, self.hi)
+    }
+}
+
 fn order<T: Reading>(a: &T, b: &T) -> Ordering {
     a.partial_cmp(b).unwrap_or(Ordering::Equal)
 }
@@ -168,34 +200,74 @@ impl<T: Reading> FeatureTrack<T> {
         }
     }
 
-    /// For every value, the share of all values within a factor `ratio >= 1` of it (in
-    /// `[v / ratio, v * ratio]`, itself included; 0 for values `<= 0`): calls `f(i, share)`
-    /// with the value's time index `i`, in the order of the sorted list. This is how far a
-    /// value's rank can move when the value is off by up to that factor, and the estimator uses
-    /// it as the rank's model error (see [`crate::ste::posterior`]). One sweep, `O(n)`.
+    /// How every value's rank stands when the values are known only within factors: calls
+    /// `f(i, share, expected)` with the value's time index `i`, in the order of the sorted list.
+    /// The estimator uses both (see [`crate::ste::posterior`]).
     ///
-    /// Rank tracks only: the other features keep no sorted list and call `f` for nothing.
-    pub fn for_each_share(&self, ratio: f64, mut f: impl FnMut(usize, f32)) {
+    /// - `share`: the share of all values within a factor `share_ratio >= 1` of it (in
+    ///   `[v / share_ratio, v * share_ratio]`, itself included; 0 for values `<= 0`), how far
+    ///   its rank can move.
+    /// - `expected`: its expected rank when every value is known only within a factor
+    ///   `rank_ratio = e^h >= 1`: `(1/n) (#{j : v_j < v e^-h} + 1 + sum_j k_j)`, the sum over the
+    ///   other values within the factor, with `k_j = (ln v - ln v_j + h) / (2 h)` the chance
+    ///   that `v_j` lies below `v` when their log-ratio is known only within `± h`. It is the
+    ///   exact rank for a value with no other value within the factor, and about 1/2 for values
+    ///   that all lie within it. Values `<= 0` keep their exact rank (the top of their tie
+    ///   group), and so does every value when `rank_ratio` is 1.
+    ///
+    /// One sweep, `O(n)` plus a logarithm per value. Rank tracks only: the other features keep
+    /// no sorted list and call `f` for nothing.
+    pub fn for_each_within(
+        &self,
+        share_ratio: f64,
+        rank_ratio: f64,
+        mut f: impl FnMut(usize, f32, f32),
+    ) {
         debug_assert!(self.feature == Feature::Rank || self.sorted.is_empty());
         let sorted = &self.sorted;
         let n = sorted.len();
-        let inv_n = 1.0 / n as f32;
-        let (mut lo, mut hi) = (0, 0);
-        for (p, &(v, idx)) in sorted.iter().enumerate() {
-            let v: f64 = v.into();
-            if v <= 0.0 {
-                f(idx as usize, 0.0);
+        let inv_n = 1.0 / n as f64;
+        let share_unit = 1.0 / n as f32;
+        // Logarithms of the positive values (values <= 0 sort first and never enter a window)
+        // and, for expected ranks, their prefix sums.
+        let logs: Vec<f64> = sorted
+            .iter()
+            .map(|&(v, _)| {
+                let v: f64 = v.into();
+                if v > 0.0 { v.ln() } else { f64::NEG_INFINITY }
+            })
+            .collect();
+        let h = rank_ratio.ln();
+        let prefix: Vec<f64> = match h > 0.0 {
+            true => std::iter::once(0.0)
+                .chain(logs.iter().scan(0.0, |sum, &l| {
+                    *sum += if l.is_finite() { l } else { 0.0 };
+                    Some(*sum)
+                }))
+                .collect(),
+            false => Vec::new(),
+        };
+        let mut shares = Window::new(share_ratio);
+        let mut ranks = Window::new(rank_ratio);
+        for (p, &(_, idx)) in sorted.iter().enumerate() {
+            let i = idx as usize;
+            let l = logs[p];
+            if !l.is_finite() {
+                f(i, 0.0, self.features[i]);
                 continue;
             }
-            let (low, high) = (v / ratio, v * ratio);
-            while sorted[lo].0.into() < low {
-                lo += 1;
-            }
-            hi = hi.max(p);
-            while hi + 1 < n && sorted[hi + 1].0.into() <= high {
-                hi += 1;
-            }
-            f(idx as usize, (hi + 1 - lo) as f32 * inv_n);
+            let (lo, hi) = shares.around(&logs, p);
+            let share = (hi + 1 - lo) as f32 * share_unit;
+            let expected = if h > 0.0 {
+                let (lo, hi) = ranks.around(&logs, p);
+                let others = (hi - lo) as f64;
+                let sum_others = prefix[hi + 1] - prefix[lo] - l;
+                let inside = (others * (l + h) - sum_others) / (2.0 * h);
+                ((lo as f64 + 1.0 + inside) * inv_n) as f32
+            } else {
+                self.features[i]
+            };
+            f(i, share, expected);
         }
     }
 

@@ -18,28 +18,42 @@
 //!
 //! Estimated values below a detection floor (1 ppm) are then set to zero.
 //!
-//! For the rank feature two further additions of ours are on by default; both use nothing but
-//! the readings themselves and the plume model, so the method stays calibration-free:
+//! For the rank feature further additions of ours use nothing but the readings themselves and
+//! the plume model, so the method stays calibration-free:
 //!
-//! - **Clean-air ties** ([`clean_air_ties`]): readings within three noise levels of the
-//!   clean-air baseline form one tie group, as the model's values below the floor do.
-//! - **Rank tolerance**: the model's concentrations are trusted only up to a factor `r`
-//!   ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above all, the
-//!   intermittency of the real plume, whose readings scatter by such factors around the mean
-//!   field). A value whose rank would move by the share `w_i` of all estimates lying within
-//!   that factor of it ([`FeatureTrack::for_each_share`]) gets the model error `w_i` on top of
-//!   the constant ones, so the likelihood becomes
+//! - **Clean-air ties** ([`clean_air_ties`], on by default): readings within three noise
+//!   levels of the clean-air baseline form one tie group, as the model's values below the
+//!   floor do.
+//! - **Rank tolerance** (on by default): the model's concentrations are trusted only up to a
+//!   factor `r` ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above
+//!   all, the intermittency of the real plume, whose readings scatter by such factors around
+//!   the mean field). A value whose rank would move by the share `w_i` of all estimates lying
+//!   within that factor of it ([`FeatureTrack::for_each_within`]) gets the model error `w_i`
+//!   on top of the constant ones.
+//! - **Expected model ranks** (for a surrogate's bank): the rank compared is the *expected*
+//!   rank `ê_i` of the value when every estimate is known only within a factor `r_e`
+//!   ([`SteParams::model_rank_factor`]; the plume model's own factor,
+//!   [`crate::plume::PlumeModel::rank_factor`], 3 for PlumeNet and 1, exact ranks, for the
+//!   solver): each other estimate within that factor counts as below it with a chance that
+//!   grows linearly in their log-ratio, from 0 at `r_e` times it to 1 at `1/r_e` times it.
 //!
-//!   ```text
-//!   ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (e_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i(theta_j)^2)
-//!   ```
+//! With all of them the likelihood becomes
 //!
-//!   Where a candidate's plume is flat along the path (a well-mixed region far downwind), its
-//!   predicted ranks are decided by tiny differences the real plume does not keep, and those
-//!   samples count little; where it is steep (near the source, at the plume's edges) and where
-//!   it predicts clean air (`w_i = 0`), they count fully. Without it, a robot that starts far
-//!   downwind and reads the fluctuations of a well-mixed plume can pin the source on a spot near
-//!   itself whose steep predicted gradient happens to fit those fluctuations.
+//! ```text
+//! ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (ê_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i(theta_j)^2)
+//! ```
+//!
+//! Where a candidate's plume is flat along the path (a well-mixed region far downwind), its
+//! exact ranks hang on small differences the real plume does not keep: those samples count
+//! little through `w_i`. Where it is steep (near the source, at the plume's edges) and where
+//! it predicts clean air (`w_i = 0`), they count fully. Without the tolerance, a robot that
+//! starts far downwind and reads the fluctuations of a well-mixed plume can pin the source on
+//! a spot near itself whose steep predicted gradient happens to fit those fluctuations. A
+//! surrogate's error there (PlumeNet's 20-30%) can even reverse the true source's predicted
+//! order, and the same failure returns; its expected ranks are then near 1/2, a prediction of
+//! "no order here", and the failure goes. They are not used with the solver's exact bank:
+//! there the flatter predictions they make cost accuracy under a mismatched reality and blur
+//! the nuisances' posteriors (the README's tuning section has the ablation).
 //!
 //! The sum runs over all `n` readings so far (the posterior is recomputed from the uniform
 //! prior and all data at every update, since rank features change with every new reading). The prior is
@@ -130,6 +144,14 @@ pub struct SteParams {
     /// trusted; the share of estimates within that factor of each estimate is added to its
     /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
     pub rank_tolerance: f64,
+    /// Rank only: the factor `r_e >= 1` within which the plume model's concentrations are
+    /// known when they are ranked; each candidate's *expected* ranks under that uncertainty
+    /// are compared with the readings' (see the module doc). 1 (the default here, and what
+    /// records from before this setting read back as) compares its exact ranks; the CLI takes
+    /// the plume model's own factor ([`crate::plume::PlumeModel::rank_factor`]: 1 for the
+    /// solver, 3 for PlumeNet).
+    #[serde(default = "exact_model_ranks")]
+    pub model_rank_factor: f64,
     /// A background of recirculated gas rising during the run, as a nuisance: the model's
     /// concentrations plus `a * (1 - exp(-t / background_time_s))` (t from the first reading),
     /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
@@ -140,6 +162,11 @@ pub struct SteParams {
     /// The background's time constant (s), the room's air-exchange time.
     #[serde(default = "default_background_time_s")]
     pub background_time_s: f64,
+}
+
+/// Exact model ranks: the default [`SteParams::model_rank_factor`].
+fn exact_model_ranks() -> f64 {
+    1.0
 }
 
 /// The default time constant of the background's rise (s).
@@ -162,17 +189,19 @@ impl SteParams {
             clean_air_ties: true,
             clean_air_window_s: None,
             rank_tolerance: RANK_TOLERANCE,
+            model_rank_factor: 1.0,
             background_rise: 0.0,
             background_time_s: default_background_time_s(),
         }
     }
 
     /// The same settings with the paper's rank likelihood: no clean-air ties, no rank
-    /// tolerance, no background nuisance (other features are unaffected).
+    /// tolerance, exact model ranks, no background nuisance (other features are unaffected).
     pub fn papers_rank(self) -> Self {
         Self {
             clean_air_ties: false,
             rank_tolerance: 1.0,
+            model_rank_factor: 1.0,
             background_rise: 0.0,
             ..self
         }
@@ -215,6 +244,12 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "rank tolerance must be a factor of at least 1, got {}",
                 self.rank_tolerance
+            )));
+        }
+        if !(self.model_rank_factor.is_finite() && self.model_rank_factor >= 1.0) {
+            return Err(Error::Parameter(format!(
+                "the model's rank factor must be at least 1, got {}",
+                self.model_rank_factor
             )));
         }
         if !(self.background_rise.is_finite() && self.background_rise >= 0.0) {
@@ -496,8 +531,8 @@ impl Estimator {
         let n = self.measured.len() as f64;
         let factor = -0.5 * n / (n + 1.0);
         let variance = self.params.sigmas.variance();
-        let tolerance = (self.params.feature == Feature::Rank && self.params.rank_tolerance > 1.0)
-            .then_some(self.params.rank_tolerance);
+        let (r, r_model) = (self.params.rank_tolerance, self.params.model_rank_factor);
+        let within = self.params.feature == Feature::Rank && (r > 1.0 || r_model > 1.0);
         let m = self.measured.features();
         let p = samples.len();
         let log_lik: Vec<f64> = self
@@ -507,22 +542,19 @@ impl Estimator {
             .map(|(k, track)| {
                 let fresh: Vec<f32> = (0..p).map(|i| gathered[i * n_cand + k]).collect();
                 track.extend(&fresh);
-                let e = track.features();
-                let sum = match tolerance {
-                    None => {
-                        e.iter()
-                            .zip(m)
-                            .map(|(&e, &m)| f64::from(e - m).powi(2))
-                            .sum::<f64>()
-                            / variance
-                    }
-                    Some(r) => {
-                        let mut sum = 0.0;
-                        track.for_each_share(r, |i, w| {
-                            sum += f64::from(e[i] - m[i]).powi(2) / (variance + f64::from(w * w));
-                        });
-                        sum
-                    }
+                let sum = if within {
+                    let mut sum = 0.0;
+                    track.for_each_within(r, r_model, |i, w, e| {
+                        sum += f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
+                    });
+                    sum
+                } else {
+                    let e = track.features();
+                    e.iter()
+                        .zip(m)
+                        .map(|(&e, &m)| f64::from(e - m).powi(2))
+                        .sum::<f64>()
+                        / variance
                 };
                 factor * sum
             })

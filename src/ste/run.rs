@@ -78,6 +78,9 @@ pub struct World {
     pub banks: Vec<Bank>,
     /// What the robot senses (the model on average unless a [`Mismatch`] is set).
     pub reality: Arc<Reality>,
+    /// The plume model's [`PlumeModel::rank_factor`], the default of
+    /// [`SteParams::model_rank_factor`] for this world.
+    pub model_rank_factor: f64,
 }
 
 impl World {
@@ -110,6 +113,7 @@ impl World {
                 banks: vec![Bank::plain(Arc::clone(&sampler))],
                 sampler,
                 reality,
+                model_rank_factor: model.rank_factor(),
             },
             hit,
         ))
