@@ -1120,9 +1120,9 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         .into_iter()
         .chain([
             (
-                "rank-exact",
+                "rank-expected",
                 SteParams {
-                    model_rank_factor: 1.0,
+                    model_rank_factor: plumenet::surrogate::inference::RANK_FACTOR,
                     ..rank
                 },
             ),

@@ -243,7 +243,7 @@ impl Surrogate {
 /// error is about a quarter to a third of the field (README "PlumeNet"), more far downwind,
 /// where the plume is flat and a small error reverses the order of two cells. Chosen on the
 /// STE's tuning seeds (README "How the STE works").
-const RANK_FACTOR: f64 = 3.0;
+pub const RANK_FACTOR: f64 = 3.0;
 
 impl PlumeModel for Surrogate {
     fn rank_factor(&self) -> f64 {
