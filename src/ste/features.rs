@@ -89,32 +89,34 @@ pub trait Reading: Copy + PartialOrd + Into<f64> + Send + Sync {}
 impl Reading for f32 {}
 impl Reading for f64 {}
 
-/// The positions `lo..=hi` of a sorted list of logarithms within `± half_width` of one of
-/// them; moved forward as that one moves up the list.
+/// The positions `lo..=hi` of a sorted list within a factor of one of its positive values;
+/// moved forward as that value moves up the list.
 struct Window {
-    half_width: f64,
+    ratio: f64,
     lo: usize,
     hi: usize,
 }
 
 impl Window {
-    /// A window for a factor `ratio` (`half_width = ln ratio`).
+    /// A window for a factor `ratio >= 1`.
     fn new(ratio: f64) -> Self {
         Self {
-            half_width: ratio.ln(),
+            ratio,
             lo: 0,
             hi: 0,
         }
     }
 
-    /// The window around position `p`, which must not lie below the previous call's.
-    fn around(&mut self, logs: &[f64], p: usize) -> (usize, usize) {
-        let l = logs[p];
-        while logs[self.lo] < l - self.half_width {
+    /// The values within `[v / ratio, v * ratio]` of the positive value `v` at position `p`,
+    /// which must not lie below the previous call's.
+    fn around<T: Reading>(&mut self, sorted: &[(T, u32)], p: usize) -> (usize, usize) {
+        let v: f64 = sorted[p].0.into();
+        let (low, high) = (v / self.ratio, v * self.ratio);
+        while sorted[self.lo].0.into() < low {
             self.lo += 1;
         }
         self.hi = self.hi.max(p);
-        while self.hi + 1 < logs.len() && logs[self.hi + 1] <= l + self.half_width {
+        while self.hi + 1 < sorted.len() && sorted[self.hi + 1].0.into() <= high {
             self.hi += 1;
         }
         (self.lo, self.hi)
@@ -228,39 +230,38 @@ impl<T: Reading> FeatureTrack<T> {
         let n = sorted.len();
         let inv_n = 1.0 / n as f64;
         let share_unit = 1.0 / n as f32;
-        // Logarithms of the positive values (values <= 0 sort first and never enter a window)
-        // and, for expected ranks, their prefix sums.
-        let logs: Vec<f64> = sorted
-            .iter()
-            .map(|&(v, _)| {
-                let v: f64 = v.into();
-                if v > 0.0 { v.ln() } else { f64::NEG_INFINITY }
-            })
-            .collect();
+        // For expected ranks, the logarithms of the values (0 for values <= 0, which sort first
+        // and never enter a window) and their prefix sums.
         let h = rank_ratio.ln();
-        let prefix: Vec<f64> = match h > 0.0 {
-            true => std::iter::once(0.0)
-                .chain(logs.iter().scan(0.0, |sum, &l| {
-                    *sum += if l.is_finite() { l } else { 0.0 };
-                    Some(*sum)
-                }))
+        let logs: Vec<f64> = match h > 0.0 {
+            true => sorted
+                .iter()
+                .map(|&(v, _)| {
+                    let v: f64 = v.into();
+                    if v > 0.0 { v.ln() } else { 0.0 }
+                })
                 .collect(),
             false => Vec::new(),
         };
+        let prefix: Vec<f64> = std::iter::once(0.0)
+            .chain(logs.iter().scan(0.0, |sum, &l| {
+                *sum += l;
+                Some(*sum)
+            }))
+            .collect();
         let mut shares = Window::new(share_ratio);
         let mut ranks = Window::new(rank_ratio);
-        for (p, &(_, idx)) in sorted.iter().enumerate() {
+        for (p, &(v, idx)) in sorted.iter().enumerate() {
             let i = idx as usize;
-            let l = logs[p];
-            if !l.is_finite() {
+            if v.into() <= 0.0 {
                 f(i, 0.0, self.features[i]);
                 continue;
             }
-            let (lo, hi) = shares.around(&logs, p);
+            let (lo, hi) = shares.around(sorted, p);
             let share = (hi + 1 - lo) as f32 * share_unit;
             let expected = if h > 0.0 {
-                let (lo, hi) = ranks.around(&logs, p);
-                let others = (hi - lo) as f64;
+                let (lo, hi) = ranks.around(sorted, p);
+                let (l, others) = (logs[p], (hi - lo) as f64);
                 let sum_others = prefix[hi + 1] - prefix[lo] - l;
                 let inside = (others * (l + h) - sum_others) / (2.0 * h);
                 ((lo as f64 + 1.0 + inside) * inv_n) as f32
