@@ -394,8 +394,19 @@ fn localize_writes_the_run_and_its_pictures() {
     // The solver's bank is exact: its ranks are compared as they are; PlumeNet's are known
     // only within its factor, unless the flag says otherwise.
     assert_eq!(run["config"]["ste"]["model_rank_factor"], 1.0);
+    // Rank marginalises a rising background by default (rises 0, 0.25 and 0.5 fully mixed).
+    assert_eq!(run["config"]["ste"]["background_rise"], 0.5);
+    assert_eq!(run["backgrounds"].as_array().unwrap().len(), 3);
     let surrogate_json = tmp.path().join("plumenet.json");
-    for (flags, factor) in [(&[][..], 3.0), (&["--model-rank-factor", "1.5"][..], 1.5)] {
+    for (flags, factor, rise) in [
+        (&[][..], 3.0, 0.5),
+        (
+            &["--model-rank-factor", "1.5", "--background-rise", "0"][..],
+            1.5,
+            0.0,
+        ),
+        (&["--feature", "value"][..], 3.0, 0.0),
+    ] {
         let mut args = vec![
             "localize",
             "--no-cache",
@@ -416,6 +427,7 @@ fn localize_writes_the_run_and_its_pictures() {
             run["config"]["ste"]["model_rank_factor"], factor,
             "{flags:?}"
         );
+        assert_eq!(run["config"]["ste"]["background_rise"], rise, "{flags:?}");
     }
 
     let iterations = run["iterations"].as_u64().unwrap() as usize;

@@ -142,9 +142,10 @@ pub struct FeatureArgs {
     #[arg(long)]
     clean_air_window: Option<f64>,
     /// Marginalise a background of recirculated gas rising during the run by 0, half or the
-    /// whole of this many fully mixed concentrations q / (U H) (default 0: off).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
-    background_rise: f64,
+    /// whole of this many fully mixed concentrations q / (U H) (default: 0.5 for rank, 0 for
+    /// the other features; 0 turns it off).
+    #[arg(long, allow_negative_numbers = true)]
+    background_rise: Option<f64>,
     /// The time constant (s) of that background's rise, the room's air-exchange time.
     #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
     background_time: f64,
@@ -176,7 +177,9 @@ impl FeatureArgs {
         p.rank_tolerance = self.rank_tolerance;
         p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
-        p.background_rise = self.background_rise;
+        if let Some(a) = self.background_rise {
+            p.background_rise = a;
+        }
         p.background_time_s = self.background_time;
         if self.paper_rank {
             p = p.papers_rank();
@@ -1142,28 +1145,32 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             "candidates": t.candidates, "samples": t.samples,
         }));
     }
-    // Each nuisance against rank over one bank without any, side by side: (what, world,
-    // settings, values).
+    // Each nuisance against rank over one bank without any (not even rank's default background
+    // nuisance), side by side: (what, world, settings, values).
+    let bare = SteParams {
+        background_rise: 0.0,
+        ..rank
+    };
     let mut nuisances = Vec::new();
     if a.wind_scales.len() > 1 {
         let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
-        nuisances.push(("wind-speed banks", banks, rank, a.wind_scales.len()));
+        nuisances.push(("wind-speed banks", banks, bare, a.wind_scales.len()));
     }
     if a.wind_spreads.len() > 1 {
         let banks = world.with_wind_spreads(&a.wind_spreads)?;
-        nuisances.push(("wind-spread banks", banks, rank, a.wind_spreads.len()));
+        nuisances.push(("wind-spread banks", banks, bare, a.wind_spreads.len()));
     }
     if a.background_rise > 0.0 {
         let with = SteParams {
             background_rise: a.background_rise,
-            ..rank
+            ..bare
         };
         nuisances.push(("background rises", world.clone(), with, 3));
     }
     let time = |w: &World, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
     let mut nuisance = Vec::new();
     if !nuisances.is_empty() {
-        let one = time(&world, rank)?;
+        let one = time(&world, bare)?;
         for (what, w, params, k) in &nuisances {
             let all = time(w, *params)?;
             let per_added = (all.update_s - one.update_s) / (k - 1) as f64 / one.update_s;
