@@ -483,7 +483,7 @@ impl Steering for Session {
     }
 }
 
-/// One leg of a steered run, as [`steer_robot`] reports it.
+/// One leg of a steered run, as `steer_robot` reports it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Leg {
     /// The goal the robot drove to.

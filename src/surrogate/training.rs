@@ -83,7 +83,7 @@ pub(crate) fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) ->
     (pred - target).powi_scalar(2).mul(free).sum().div(count)
 }
 
-/// The training loss: [`masked_mse`] of the transformed target, plus `rel_l2_weight` times the
+/// The training loss: `masked_mse` of the transformed target, plus `rel_l2_weight` times the
 /// batch's mean squared relative L2 error of the concentration over free cells. The target is
 /// `y = ln(1 + c f / s)`, so `c` is proportional to `exp(y) - 1` with a factor that cancels in
 /// the ratio; predictions are capped at `y = 20` inside the exponential.
