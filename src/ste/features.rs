@@ -136,7 +136,6 @@ pub struct FeatureTrack<T: Reading> {
     features: Vec<f32>,
     threshold: f64,
     sorted: Vec<(T, u32)>,
-    scratch: Vec<(T, u32)>,
 }
 
 impl<T: Reading> FeatureTrack<T> {
@@ -149,7 +148,6 @@ impl<T: Reading> FeatureTrack<T> {
             features: Vec::new(),
             threshold: 0.0,
             sorted: Vec::new(),
-            scratch: Vec::new(),
         }
     }
 
@@ -272,8 +270,9 @@ impl<T: Reading> FeatureTrack<T> {
         }
     }
 
-    /// Sort the new values, merge them into the sorted list, and assign the ranks in the same
-    /// pass: when a group of equal values ends at merged position `k`, each member gets `k / n`.
+    /// Sort the new values, merge them into the sorted list in place (from the back, so no
+    /// second buffer is kept), then assign the ranks in one pass: when a group of equal values
+    /// ends at sorted position `k`, each member gets `k / n`.
     fn update_ranks(&mut self, start: usize) {
         let mut fresh: Vec<(T, u32)> = self.values[start..]
             .iter()
@@ -281,41 +280,38 @@ impl<T: Reading> FeatureTrack<T> {
             .map(|(k, &v)| (v, (start + k) as u32))
             .collect();
         fresh.sort_unstable_by(|a, b| order(&a.0, &b.0));
-        let n = self.sorted.len() + fresh.len();
+        let sorted = &mut self.sorted;
+        let (mut i, mut j) = (sorted.len(), fresh.len());
+        let n = i + j;
+        sorted.reserve_exact(j);
+        sorted.extend_from_slice(&fresh);
+        let mut k = n;
+        while j > 0 {
+            k -= 1;
+            // Old values first among equals (the new one goes after them); ties get the same
+            // rank either way.
+            if i == 0 || order(&fresh[j - 1].0, &sorted[i - 1].0) != Ordering::Less {
+                j -= 1;
+                sorted[k] = fresh[j];
+            } else {
+                i -= 1;
+                sorted[k] = sorted[i];
+            }
+        }
         self.features.resize(n, 0.0);
         let inv = 1.0 / n as f64;
-        let (old, new) = (&self.sorted, &fresh);
-        let out = &mut self.scratch;
-        let features = &mut self.features;
-        out.clear();
-        out.reserve(n);
         let mut group = 0;
-        let (mut i, mut j) = (0, 0);
-        while i < old.len() || j < new.len() {
-            // Old values first among equals; ties get the same rank either way.
-            let take_old =
-                j == new.len() || (i < old.len() && order(&new[j].0, &old[i].0) != Ordering::Less);
-            let next = if take_old {
-                i += 1;
-                old[i - 1]
-            } else {
-                j += 1;
-                new[j - 1]
-            };
-            if let Some(last) = out.last()
-                && last.0 != next.0
-            {
-                let rank = (out.len() as f64 * inv) as f32;
-                for &(_, idx) in &out[group..] {
-                    features[idx as usize] = rank;
+        for k in 1..n {
+            if sorted[k - 1].0 != sorted[k].0 {
+                let rank = (k as f64 * inv) as f32;
+                for &(_, idx) in &sorted[group..k] {
+                    self.features[idx as usize] = rank;
                 }
-                group = out.len();
+                group = k;
             }
-            out.push(next);
         }
-        for &(_, idx) in &out[group..] {
-            features[idx as usize] = 1.0;
+        for &(_, idx) in &sorted[group..] {
+            self.features[idx as usize] = 1.0;
         }
-        std::mem::swap(&mut self.sorted, &mut self.scratch);
     }
 }
