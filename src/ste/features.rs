@@ -1,7 +1,8 @@
 //! The four gas features of the paper, extracted incrementally from a time-ordered sequence.
 //!
-//! A [`FeatureTrack`] holds one sequence (the measured readings `d_1..d_n`, or one candidate's
-//! estimated concentrations `c_1..c_n` at the same sample positions) and its feature values:
+//! A [`FeatureTrack`] takes one sequence (the measured readings `d_1..d_n`, or one candidate's
+//! estimated concentrations `c_1..c_n` at the same sample positions) and keeps its feature
+//! values (and, for rank, the values themselves as a sorted list):
 //!
 //! - **value**: `m_i = d_i`;
 //! - **fixed hit**: `m_i = 1` if `d_i > threshold`, else 0 (one documented threshold, in the
@@ -132,7 +133,6 @@ fn order<T: Reading>(a: &T, b: &T) -> Ordering {
 pub struct FeatureTrack<T: Reading> {
     feature: Feature,
     params: FeatureParams,
-    values: Vec<T>,
     features: Vec<f32>,
     threshold: f64,
     sorted: Vec<(T, u32)>,
@@ -144,7 +144,6 @@ impl<T: Reading> FeatureTrack<T> {
         Self {
             feature,
             params,
-            values: Vec::new(),
             features: Vec::new(),
             threshold: 0.0,
             sorted: Vec::new(),
@@ -153,17 +152,12 @@ impl<T: Reading> FeatureTrack<T> {
 
     /// Number of values so far.
     pub fn len(&self) -> usize {
-        self.values.len()
+        self.features.len()
     }
 
     /// Whether the track is empty.
     pub fn is_empty(&self) -> bool {
-        self.values.is_empty()
-    }
-
-    /// The raw values in time order.
-    pub fn values(&self) -> &[T] {
-        &self.values
+        self.features.is_empty()
     }
 
     /// The feature of every value so far, in time order.
@@ -174,8 +168,7 @@ impl<T: Reading> FeatureTrack<T> {
     /// Appends new values (in time order) and updates the features. Values must not be NaN
     /// (the estimator checks readings before they get here).
     pub fn extend(&mut self, new: &[T]) {
-        let start = self.values.len();
-        self.values.extend_from_slice(new);
+        let start = self.len();
         match self.feature {
             Feature::Value => self.features.extend(new.iter().map(|&v| v.into() as f32)),
             Feature::FixedHit => {
@@ -196,7 +189,7 @@ impl<T: Reading> FeatureTrack<T> {
                     }
                 }
             }
-            Feature::Rank => self.update_ranks(start),
+            Feature::Rank => self.update_ranks(start, new),
         }
     }
 
@@ -273,8 +266,8 @@ impl<T: Reading> FeatureTrack<T> {
     /// Sort the new values, merge them into the sorted list in place (from the back, so no
     /// second buffer is kept), then assign the ranks in one pass: when a group of equal values
     /// ends at sorted position `k`, each member gets `k / n`.
-    fn update_ranks(&mut self, start: usize) {
-        let mut fresh: Vec<(T, u32)> = self.values[start..]
+    fn update_ranks(&mut self, start: usize, new: &[T]) {
+        let mut fresh: Vec<(T, u32)> = new
             .iter()
             .enumerate()
             .map(|(k, &v)| (v, (start + k) as u32))

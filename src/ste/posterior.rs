@@ -327,6 +327,8 @@ pub struct Estimator {
     measured: FeatureTrack<f64>,
     edf: FeatureTrack<f64>,
     estimated: Vec<FeatureTrack<f32>>,
+    /// The readings so far, in time order.
+    readings: Vec<f64>,
     positions: Vec<[f64; 2]>,
     times: Vec<f64>,
     posterior: Vec<f64>,
@@ -405,6 +407,7 @@ impl Estimator {
                 .collect(),
             samplers,
             log_prior,
+            readings: Vec::new(),
             positions: Vec::new(),
             times: Vec::new(),
             posterior,
@@ -522,9 +525,10 @@ impl Estimator {
         }
         let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
         self.edf.extend(&values);
+        self.readings.extend_from_slice(&values);
         self.times.extend(samples.iter().map(|s| s.t));
         if self.params.clean_air_ties && self.params.feature == Feature::Rank {
-            let mut all = self.edf.values().to_vec();
+            let mut all = self.readings.clone();
             match self.params.clean_air_window_s {
                 None => clean_air_ties(&mut all),
                 Some(w) => drifting_clean_air_ties(&mut all, &self.times, w),
