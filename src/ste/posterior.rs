@@ -660,8 +660,10 @@ impl Estimator {
 const RANK_TOLERANCE: f64 = 3.0;
 
 /// Rank's default background nuisance: a rise of up to half the fully mixed concentration
-/// (chosen on the mismatch suite; it fixes a rising background and costs nothing measurable
-/// without one, README "Sim-to-real").
+/// (chosen on the mismatch suite: the smallest rise measured that fixes a rising background
+/// in the paper arena and in unseen rooms; without a background it costs nothing measurable
+/// with Sensor II and about 0.1 m with the calibrated sensor and Sensor I, README
+/// "Sim-to-real").
 const BACKGROUND_RISE: f64 = 0.5;
 
 /// Noise levels above the clean-air baseline below which readings tie.
