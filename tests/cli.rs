@@ -744,6 +744,15 @@ fn bad_ste_input_fails_cleanly() {
         "1",
     ]);
     assert_clean_failure(&out, "cannot be used with");
+    let out = plumenet(&[
+        "localize",
+        "--solver",
+        "--source",
+        "3,2",
+        "--paper-rank",
+        "--clean-air-model-ties",
+    ]);
+    assert_clean_failure(&out, "cannot be used with");
 }
 
 /// `serve` over TCP with a state file: killed with SIGKILL in the middle of a stream and

@@ -168,8 +168,9 @@ proptest! {
     }
 
     /// The share of values within one factor of each value, and each value's expected rank
-    /// within another, against a double loop; the expected ranks average 1/2 + 1/(2n), as exact
-    /// ranks of distinct values do, and with the factor 1 they are the exact ranks.
+    /// within another, against a double loop (each passed with its own value); the expected
+    /// ranks average 1/2 + 1/(2n), as exact ranks of distinct values do, and with the factor 1
+    /// they are the exact ranks.
     #[test]
     fn shares_and_expected_ranks_within_a_factor_equal_brute_force(
         values in proptest::collection::vec(prop_oneof![Just(0.0f32), 0.0f32..100.0], 1..80),
@@ -210,7 +211,10 @@ proptest! {
             })
             .collect();
         let mut ours = vec![(f32::NAN, f32::NAN); values.len()];
-        track.for_each_within(ratio, rank_ratio, |i, w, e| ours[i] = (w, e));
+        track.for_each_within(ratio, rank_ratio, |i, v, w, e| {
+            assert_eq!(v, f64::from(values[i]), "value {i}");
+            ours[i] = (w, e);
+        });
         for (i, (a, b)) in ours.iter().zip(&brute).enumerate() {
             prop_assert!((f64::from(a.0) - b.0).abs() <= 1e-6, "value {}: share {} vs {}", i, a.0, b.0);
             prop_assert!((f64::from(a.1) - b.1).abs() <= 1e-5, "value {}: expected rank {} vs {}", i, a.1, b.1);
@@ -219,7 +223,7 @@ proptest! {
             let mean = ours.iter().map(|p| f64::from(p.1)).sum::<f64>() / n;
             prop_assert!((mean - (0.5 + 0.5 / n)).abs() <= 1e-5, "mean expected rank {}", mean);
         }
-        track.for_each_within(ratio, 1.0, |i, _, e| ours[i].1 = e);
+        track.for_each_within(ratio, 1.0, |i, _, _, e| ours[i].1 = e);
         for (i, (a, &exact)) in ours.iter().zip(track.features()).enumerate() {
             prop_assert_eq!(a.1, exact, "value {} with the factor 1", i);
         }

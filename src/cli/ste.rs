@@ -137,6 +137,11 @@ pub struct FeatureArgs {
     /// the model's own, 3 for PlumeNet and 1 for the solver; 1 compares exact ranks).
     #[arg(long)]
     model_rank_factor: Option<f64>,
+    /// Rank only, with the background nuisance: the nuisance's estimates of the background
+    /// alone that rank within the readings' clean-air tie group join that group, instead of
+    /// being compared by their order in time (helps a rising background on surveys).
+    #[arg(long)]
+    clean_air_model_ties: bool,
     /// Rank only: follow a drifting clean-air baseline, taken in a centred window of this many
     /// seconds (default: one baseline for the whole run).
     #[arg(long)]
@@ -149,9 +154,10 @@ pub struct FeatureArgs {
     /// The time constant (s) of that background's rise, the room's air-exchange time.
     #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
     background_time: f64,
-    /// Rank only: the paper's rank likelihood, without our clean-air ties, rank tolerance,
-    /// expected model ranks and background nuisance (exactly invariant under every increasing transform of the readings).
-    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise"])]
+    /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
+    /// the model), rank tolerance, expected model ranks and background nuisance (exactly
+    /// invariant under every increasing transform of the readings).
+    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties"])]
     paper_rank: bool,
 }
 
@@ -177,6 +183,7 @@ impl FeatureArgs {
         p.rank_tolerance = self.rank_tolerance;
         p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
+        p.clean_air_model_ties = self.clean_air_model_ties;
         if let Some(a) = self.background_rise {
             p.background_rise = a;
         }

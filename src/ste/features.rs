@@ -194,8 +194,8 @@ impl<T: Reading> FeatureTrack<T> {
     }
 
     /// How every value's rank stands when the values are known only within factors: calls
-    /// `f(i, share, expected)` with the value's time index `i`, in the order of the sorted list.
-    /// The estimator uses both (see [`crate::ste::posterior`]).
+    /// `f(i, value, share, expected)` with the value's time index `i`, in the order of the
+    /// sorted list. The estimator uses all three (see [`crate::ste::posterior`]).
     ///
     /// - `share`: the share of all values within a factor `share_ratio >= 1` of it (in
     ///   `[v / share_ratio, v * share_ratio]`, itself included; 0 for values `<= 0`), how far
@@ -214,7 +214,7 @@ impl<T: Reading> FeatureTrack<T> {
         &self,
         share_ratio: f64,
         rank_ratio: f64,
-        mut f: impl FnMut(usize, f32, f32),
+        mut f: impl FnMut(usize, f64, f32, f32),
     ) {
         debug_assert!(self.feature == Feature::Rank || self.sorted.is_empty());
         let sorted = &self.sorted;
@@ -244,8 +244,9 @@ impl<T: Reading> FeatureTrack<T> {
         let mut ranks = Window::new(rank_ratio);
         for (p, &(v, idx)) in sorted.iter().enumerate() {
             let i = idx as usize;
-            if v.into() <= 0.0 {
-                f(i, 0.0, self.features[i]);
+            let value: f64 = v.into();
+            if value <= 0.0 {
+                f(i, value, 0.0, self.features[i]);
                 continue;
             }
             let (lo, hi) = shares.around(sorted, p);
@@ -259,7 +260,7 @@ impl<T: Reading> FeatureTrack<T> {
             } else {
                 self.features[i]
             };
-            f(i, share, expected);
+            f(i, value, share, expected);
         }
     }
 

@@ -24,6 +24,14 @@
 //! - **Clean-air ties** ([`clean_air_ties`], on by default): readings within three noise
 //!   levels of the clean-air baseline form one tie group, as the model's values below the
 //!   floor do.
+//! - **Clean-air model ties** (an option, off by default,
+//!   [`SteParams::clean_air_model_ties`]): that group holds the lowest share `q` of the
+//!   readings, whose order the sensor cannot tell. With the background nuisance, an estimate
+//!   that is the background alone (the plume below the floor) and ranked below `q` joins that
+//!   group (its rank is raised to `q`), as the model's zeros do without a background. Without
+//!   it a rising background's first minutes, which lie within the readings' clean-air band,
+//!   are compared by an order in time that no reading shows, and on a survey the true source
+//!   with a background can lose to a plume from upwind.
 //! - **Rank tolerance** (on by default): the model's concentrations are trusted only up to a
 //!   factor `r` ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above
 //!   all, the intermittency of the real plume, whose readings scatter by such factors around
@@ -139,6 +147,15 @@ pub struct SteParams {
     /// tie group (see [`clean_air_ties`]). On by default; the rank posterior is then invariant
     /// under gain and offset of the readings, no longer under every increasing transform.
     pub clean_air_ties: bool,
+    /// Rank only, with `clean_air_ties` and the background nuisance: an estimate that is the
+    /// background alone (its plume below the detection floor) and ranked within the readings'
+    /// clean-air tie group (below the group's rank `q`, its share of the readings) joins that
+    /// group, its rank raised to `q`: the sensor cannot order those readings, so neither is
+    /// the background's order among them compared. Off by default (and for records from
+    /// before this setting): it fixes a rising background on surveys but costs elsewhere (the
+    /// README's "Sim-to-real" has the figures).
+    #[serde(default)]
+    pub clean_air_model_ties: bool,
     /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
     /// clean-air baseline is taken, so that it follows a drifting baseline (sensor drift, gas
     /// accumulating in the room); readings above it count by their excess over it. `None`
@@ -192,6 +209,7 @@ impl SteParams {
             sensor_lag_s: Some([sensor.tau_res_s, sensor.tau_rec_s]),
             detection_floor_ppm: 1.0,
             clean_air_ties: true,
+            clean_air_model_ties: false,
             clean_air_window_s: None,
             rank_tolerance: RANK_TOLERANCE,
             model_rank_factor: 1.0,
@@ -203,11 +221,13 @@ impl SteParams {
         }
     }
 
-    /// The same settings with the paper's rank likelihood: no clean-air ties, no rank
-    /// tolerance, exact model ranks, no background nuisance (other features are unaffected).
+    /// The same settings with the paper's rank likelihood: no clean-air ties (of the readings
+    /// or of the model), no rank tolerance, exact model ranks, no background nuisance (other
+    /// features are unaffected).
     pub fn papers_rank(self) -> Self {
         Self {
             clean_air_ties: false,
+            clean_air_model_ties: false,
             rank_tolerance: 1.0,
             model_rank_factor: 1.0,
             background_rise: 0.0,
@@ -503,9 +523,10 @@ impl Estimator {
         let per_bank = self.backgrounds.len() * positions;
         let t0 = self.times.first().copied().unwrap_or(samples[0].t);
         let tau = self.params.background_time_s;
+        let rise = |t: f64| 1.0 - (-(t - t0).max(0.0) / tau).exp();
         let mut gathered = vec![0.0f32; samples.len() * n_cand];
         for (s, row) in samples.iter().zip(gathered.chunks_mut(n_cand)) {
-            let rise = 1.0 - (-(s.t - t0).max(0.0) / tau).exp();
+            let rise = rise(s.t);
             let banks = self.samplers.iter().zip(&self.mixed_ppm);
             for ((sampler, mixed), part) in banks.zip(row.chunks_mut(per_bank)) {
                 let (plume, rest) = part.split_at_mut(positions);
@@ -519,7 +540,8 @@ impl Estimator {
         if let Some(taus) = self.params.sensor_lag_s {
             self.apply_lag(samples, &mut gathered, taus);
         }
-        let floor = self.params.detection_floor_ppm as f32;
+        let floor_ppm = self.params.detection_floor_ppm;
+        let floor = floor_ppm as f32;
         for c in gathered.iter_mut().filter(|c| **c < floor) {
             *c = 0.0;
         }
@@ -546,6 +568,18 @@ impl Estimator {
         let (r, r_model) = (self.params.rank_tolerance, self.params.model_rank_factor);
         let within = self.params.feature == Feature::Rank && (r > 1.0 || r_model > 1.0);
         let m = self.measured.features();
+        // Clean-air model ties: in a background slot, an estimate that is the background alone
+        // (its plume below the floor) and ranked below the readings' clean-air tie group joins
+        // that group (its rank raised to the group's, the readings' lowest).
+        let tied = self.params.feature == Feature::Rank
+            && self.params.clean_air_ties
+            && self.params.clean_air_model_ties;
+        let q = m.iter().copied().fold(f32::INFINITY, f32::min);
+        let rises: Vec<f64> = match tied {
+            true => self.times.iter().map(|&t| rise(t)).collect(),
+            false => Vec::new(),
+        };
+        let levels = self.backgrounds.len();
         let p = samples.len();
         let log_lik: Vec<f64> = self
             .estimated
@@ -554,9 +588,16 @@ impl Estimator {
             .map(|(k, track)| {
                 let fresh: Vec<f32> = (0..p).map(|i| gathered[i * n_cand + k]).collect();
                 track.extend(&fresh);
-                let sum = if within {
+                let slot = k / positions;
+                // The slot's background (ppm) at a whole rise, with a little room for rounding.
+                let full = self.backgrounds[slot % levels] * self.mixed_ppm[slot / levels];
+                let joins = tied && full > 0.0;
+                let sum = if within || joins {
                     let mut sum = 0.0;
-                    track.for_each_within(r, r_model, |i, w, e| {
+                    track.for_each_within(r, r_model, |i, v, w, e| {
+                        let alone = joins && v <= full * rises[i] * (1.0 + 1e-6) + floor_ppm;
+                        let e = if alone { e.max(q) } else { e };
+                        let w = if within { w } else { 0.0 };
                         sum += f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
                     });
                     sum
