@@ -589,12 +589,13 @@ impl Estimator {
                 let fresh: Vec<f32> = (0..p).map(|i| gathered[i * n_cand + k]).collect();
                 track.extend(&fresh);
                 let slot = k / positions;
-                // The slot's background (ppm) at a whole rise, with a little room for rounding.
+                // The slot's background (ppm) at a whole rise.
                 let full = self.backgrounds[slot % levels] * self.mixed_ppm[slot / levels];
                 let joins = tied && full > 0.0;
                 let sum = if within || joins {
                     let mut sum = 0.0;
                     track.for_each_within(r, r_model, |i, v, w, e| {
+                        // The background alone, with a little room for the f32 rounding.
                         let alone = joins && v <= full * rises[i] * (1.0 + 1e-6) + floor_ppm;
                         let e = if alone { e.max(q) } else { e };
                         let w = if within { w } else { 0.0 };
