@@ -1136,6 +1136,13 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
                     ..rank
                 },
             ),
+            (
+                "rank-ties",
+                SteParams {
+                    clean_air_model_ties: true,
+                    ..rank
+                },
+            ),
             ("rank-paper", rank.papers_rank()),
         ]);
     for (name, params) in variants {
