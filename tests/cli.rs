@@ -724,6 +724,8 @@ fn bad_ste_input_fails_cleanly() {
             "0.5",
             "rank factor must be at least 1",
         ),
+        ("--lag-exponent", "0", "lag's exponent must lie in (0, 1]"),
+        ("--lag-exponent", "1.5", "lag's exponent must lie in (0, 1]"),
     ] {
         let args = [
             "localize",

@@ -86,6 +86,49 @@ fn one_time_constant_gives_63_percent_of_a_step() {
     assert!(step_response(SensorPreset::SensorII, 1.0, 0.0, p.tau_res_s) < 0.45);
 }
 
+/// The sensor's dynamics act on its output, which follows the gas as a power of it: a lag in
+/// the response `c^a` (with the response's exponent, 1/|k|) orders an intermittent plume's
+/// readings better than a lag in the concentration itself (the estimator's default).
+#[test]
+fn the_lag_in_the_sensors_response_orders_its_readings() {
+    use plumenet::surrogate::eval::spearman;
+    use rand::RngExt;
+    let p = MoxParams::for_preset(SensorPreset::SensorII);
+    let mut sensor = MoxSensor::preset(SensorPreset::SensorII, false).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    // Filament-like: mostly clean air, puffs spread over two decades.
+    let c: Vec<f64> = (0..6000)
+        .map(|_| match rng.random_bool(0.3) {
+            true => 0.03 * 100f64.powf(rng.random_range(0.0..1.0)),
+            false => 0.0,
+        })
+        .collect();
+    let readings: Vec<f64> = c.iter().map(|&c| sensor.sample(c, 0.1, &mut rng)).collect();
+    let lagged = |a: f64| -> Vec<f64> {
+        let mut y = 0.0f64;
+        c.iter()
+            .map(|&c| {
+                let u = (p.ppm_per_unit * c).powf(a);
+                let tau = if u > y { p.tau_res_s } else { p.tau_rec_s };
+                y += (u - y) * (1.0 - (-0.1 / tau).exp());
+                y.powf(1.0 / a)
+            })
+            .collect()
+    };
+    let exponent = p.response_exponent();
+    assert!((exponent - 1.0 / 1.58).abs() < 1e-12);
+    assert_eq!(
+        SteParams::for_feature(Feature::Rank).sensor_lag_exponent,
+        1.0
+    );
+    let ours = spearman(&readings, &lagged(exponent));
+    let concentration = spearman(&readings, &lagged(1.0));
+    assert!(
+        ours > 0.95 && 1.0 - ours < 0.5 * (1.0 - concentration),
+        "Spearman with the lag in c^{exponent}: {ours}; in c: {concentration}"
+    );
+}
+
 #[test]
 fn calibrated_reading_recovers_the_concentration() {
     let p = MoxParams::for_preset(SensorPreset::Calibrated);
@@ -329,27 +372,46 @@ fn prior_is_uniform_on_its_support_and_zero_elsewhere() {
 }
 
 /// The likelihood, brute force: features from scratch, the paper's formula (and, for rank,
-/// with our clean-air ties, rank tolerance and background nuisance as well as without), no
-/// sensor lag.
+/// with our clean-air ties, rank tolerance and background nuisance as well as without), with
+/// and without the sensor lag (in the sensor's response `c^a`, and in the concentration).
 #[test]
 fn posterior_matches_the_papers_formula_by_brute_force() {
     use plumenet::ste::posterior::clean_air_ties;
     let samples = synthetic_samples(7, 50);
-    let variants = Feature::ALL.map(SteParams::for_feature).into_iter().chain([
-        SteParams::for_feature(Feature::Rank).papers_rank(),
-        SteParams {
-            background_rise: 0.5,
-            ..SteParams::for_feature(Feature::Rank)
-        },
-        SteParams {
-            model_rank_factor: 3.0,
-            ..SteParams::for_feature(Feature::Rank)
-        },
-    ]);
-    for mut params in variants {
+    let no_lag = |p: SteParams| SteParams {
+        sensor_lag_s: None,
+        ..p
+    };
+    let rank = SteParams::for_feature(Feature::Rank);
+    let variants = Feature::ALL
+        .map(SteParams::for_feature)
+        .map(no_lag)
+        .into_iter()
+        .chain([
+            no_lag(rank.papers_rank()),
+            no_lag(SteParams {
+                background_rise: 0.5,
+                ..rank
+            }),
+            no_lag(SteParams {
+                model_rank_factor: 3.0,
+                ..rank
+            }),
+            rank,
+            SteParams {
+                sensor_lag_exponent: MoxParams::for_preset(SensorPreset::SensorII)
+                    .response_exponent(),
+                ..rank
+            },
+            SteParams::for_feature(Feature::Value),
+            SteParams {
+                sensor_lag_exponent: 0.5,
+                ..SteParams::for_feature(Feature::Value)
+            },
+        ]);
+    for params in variants {
         let feature = params.feature;
         let ours = feature == Feature::Rank && params.clean_air_ties;
-        params.sensor_lag_s = None;
         let mut est = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap();
         est.update(&samples).unwrap();
         let mut values: Vec<f64> = samples.iter().map(|s| s.value).collect();
@@ -398,6 +460,23 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
         };
         let mixed = world().layout.fully_mixed(1.0) * params.ppm_per_unit;
         let rise = |t: f64| 1.0 - (-(t - samples[0].t) / params.background_time_s).exp();
+        // The sensor's first-order response to `c^a` (rising with tau_res, falling with
+        // tau_rec), starting in equilibrium with the first sample, taken back to `c`.
+        let lag = |c: Vec<f64>| -> Vec<f64> {
+            let Some([res, rec]) = params.sensor_lag_s else {
+                return c;
+            };
+            let a = params.sensor_lag_exponent;
+            let mut y = c[0].powf(a);
+            let mut out = vec![c[0]];
+            for (i, ci) in c.iter().enumerate().skip(1) {
+                let u = ci.powf(a);
+                let tau = if u > y { res } else { rec };
+                y += (u - y) * (1.0 - (-(samples[i].t - samples[i - 1].t) / tau).exp());
+                out.push(y.powf(1.0 / a));
+            }
+            out
+        };
         let log_lik = |level: f64| -> Vec<f64> {
             (0..sampler.len())
                 .map(|k| {
@@ -406,6 +485,9 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                         .iter()
                         .zip(&samples)
                         .map(|(r, s)| f64::from(r[k] + (level * mixed * rise(s.t)) as f32))
+                        .collect();
+                    let c: Vec<f64> = lag(c)
+                        .into_iter()
                         .map(|c| if c < floor { 0.0 } else { c })
                         .collect();
                     let r = params.rank_tolerance;

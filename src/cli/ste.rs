@@ -21,8 +21,8 @@ use plumenet::ste::replay::{read_log, replay_in_steps};
 use plumenet::ste::run::{StartRule, derive_seed};
 use plumenet::ste::survey::{fly, lawnmower};
 use plumenet::ste::{
-    Baselines, EpisodeConfig, Feature, Mismatch, PlannerKind, Reality, RobotParams, Sampling,
-    SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
+    Baselines, EpisodeConfig, Feature, Mismatch, MoxParams, PlannerKind, Reality, RobotParams,
+    Sampling, SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
 };
 use plumenet::surrogate::Surrogate;
 use plumenet::viewer::RunView;
@@ -128,6 +128,11 @@ pub struct FeatureArgs {
     /// response and recovery dynamics first (the paper's form).
     #[arg(long)]
     no_lag_model: bool,
+    /// The exponent of the sensor's response in which its lag acts: the estimated
+    /// concentrations are raised to it, lagged and taken back (1, the default, lags the
+    /// concentration itself; 0.633 is 1/|k| of the MiCS-5521's datasheet slope k = -1.58).
+    #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).sensor_lag_exponent)]
+    lag_exponent: f64,
     /// Rank only: the factor within which the plume model's concentrations are trusted; the
     /// share of estimates within it adds to each rank's model error (1 turns it off).
     #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
@@ -180,6 +185,7 @@ impl FeatureArgs {
         if self.no_lag_model {
             p.sensor_lag_s = None;
         }
+        p.sensor_lag_exponent = self.lag_exponent;
         p.rank_tolerance = self.rank_tolerance;
         p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
@@ -1140,6 +1146,14 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
                 "rank-ties",
                 SteParams {
                     clean_air_model_ties: true,
+                    ..rank
+                },
+            ),
+            (
+                "rank-lag-resp",
+                SteParams {
+                    sensor_lag_exponent: MoxParams::for_preset(SensorPreset::SensorII)
+                        .response_exponent(),
                     ..rank
                 },
             ),

@@ -136,6 +136,14 @@ impl MoxParams {
         }
     }
 
+    /// The power of the gas that the sensor's conductance follows, `1/|k|` (with a load
+    /// resistor small against the sensor's resistance, so does the divider's voltage): the
+    /// exponent of [`crate::ste::SteParams::sensor_lag_exponent`] that lags the estimates in
+    /// the sensor's response.
+    pub fn response_exponent(&self) -> f64 {
+        1.0 / self.k.abs()
+    }
+
     /// Steady-state (nominal) output voltage for a plume concentration `c` (model units).
     pub fn steady_voltage(&self, c: f64) -> f64 {
         let g = self.background_ppm + self.ppm_per_unit * c.max(0.0);
