@@ -397,6 +397,9 @@ fn localize_writes_the_run_and_its_pictures() {
     // Rank marginalises a rising background by default (rises 0, 0.25 and 0.5 fully mixed).
     assert_eq!(run["config"]["ste"]["background_rise"], 0.5);
     assert_eq!(run["backgrounds"].as_array().unwrap().len(), 3);
+    // The sensor lag acts on the concentration and the floor is 1 ppm unless said otherwise.
+    assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], 1.0);
+    assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 1.0);
     let surrogate_json = tmp.path().join("plumenet.json");
     for (flags, factor, rise) in [
         (&[][..], 3.0, 0.5),
@@ -406,6 +409,11 @@ fn localize_writes_the_run_and_its_pictures() {
             0.0,
         ),
         (&["--feature", "value"][..], 3.0, 0.0),
+        (
+            &["--lag-exponent", "0.633", "--detection-floor", "0.2"][..],
+            3.0,
+            0.5,
+        ),
     ] {
         let mut args = vec![
             "localize",
@@ -428,6 +436,12 @@ fn localize_writes_the_run_and_its_pictures() {
             "{flags:?}"
         );
         assert_eq!(run["config"]["ste"]["background_rise"], rise, "{flags:?}");
+        let [exponent, floor] = match flags.contains(&"--lag-exponent") {
+            true => [0.633, 0.2],
+            false => [1.0, 1.0],
+        };
+        assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], exponent);
+        assert_eq!(run["config"]["ste"]["detection_floor_ppm"], floor);
     }
 
     let iterations = run["iterations"].as_u64().unwrap() as usize;
@@ -726,6 +740,7 @@ fn bad_ste_input_fails_cleanly() {
         ),
         ("--lag-exponent", "0", "lag's exponent must lie in (0, 1]"),
         ("--lag-exponent", "1.5", "lag's exponent must lie in (0, 1]"),
+        ("--detection-floor", "-1", "detection floor"),
     ] {
         let args = [
             "localize",

@@ -133,6 +133,10 @@ pub struct FeatureArgs {
     /// concentration itself; 0.633 is 1/|k| of the MiCS-5521's datasheet slope k = -1.58).
     #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).sensor_lag_exponent)]
     lag_exponent: f64,
+    /// Estimated concentrations below this many ppm are set to zero, as the sensor cannot
+    /// tell them from clean air.
+    #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).detection_floor_ppm)]
+    detection_floor: f64,
     /// Rank only: the factor within which the plume model's concentrations are trusted; the
     /// share of estimates within it adds to each rank's model error (1 turns it off).
     #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
@@ -186,6 +190,7 @@ impl FeatureArgs {
             p.sensor_lag_s = None;
         }
         p.sensor_lag_exponent = self.lag_exponent;
+        p.detection_floor_ppm = self.detection_floor;
         p.rank_tolerance = self.rank_tolerance;
         p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
