@@ -24,9 +24,11 @@
 //! `a < 1`) and understates the recovery (`c^a` of an exponential decay falls with `tau / a`):
 //! a narrow plume crossed near its source reads lower than that model says, and the estimates
 //! of lawnmower surveys in the paper arena sit about a candidate downwind of the source. The
-//! response's exponent removes most of that offset there, but does worse on the surveys of
-//! unseen rooms, so it is an option (the README's "The lag in the sensor's response" has the
-//! figures).
+//! response's exponent removes most of that offset there. In unseen rooms it needs a lower
+//! detection floor beside it (the readings' clean-air band ends below the 1 ppm floor, and
+//! the response's faster recovery leaves the sensor's tail after each crossing unexplained),
+//! and with every mismatch at once it costs, so both stay options (the README's "The lag in
+//! the sensor's response" has the figures).
 //!
 //! Estimated values below a detection floor (1 ppm) are then set to zero.
 //!
@@ -158,8 +160,11 @@ pub struct SteParams {
     /// against the sensor's resistance, so does the divider's voltage): `1/1.58` for the
     /// MiCS-5521, a property of the sensor type like the time constants, not a calibration.
     /// 1 (the default, and what records from before this setting read back as) lags the
-    /// concentration itself: the response's exponent helps in the paper arena but not in
-    /// unseen rooms (the README's "The lag in the sensor's response" has the figures).
+    /// concentration itself. The response's exponent alone helps in the paper arena but not
+    /// in unseen rooms; with [`SteParams::detection_floor_ppm`] lowered to where the readings'
+    /// clean-air band ends (0.2 ppm for Sensor II) it helps without mismatch in both, and costs
+    /// with all mismatches at once (the README's "The lag in the sensor's response" has the
+    /// figures).
     #[serde(default = "concentration_lag")]
     pub sensor_lag_exponent: f64,
     /// Estimated concentrations below this (ppm) are set to zero: a sensor cannot tell them
