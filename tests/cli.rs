@@ -401,18 +401,23 @@ fn localize_writes_the_run_and_its_pictures() {
     assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], 1.0);
     assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 1.0);
     let surrogate_json = tmp.path().join("plumenet.json");
-    for (flags, factor, rise) in [
-        (&[][..], 3.0, 0.5),
+    // (flags, model rank factor, background rise, lag exponent, detection floor)
+    for (flags, factor, rise, exponent, floor) in [
+        (&[][..], 3.0, 0.5, 1.0, 1.0),
         (
             &["--model-rank-factor", "1.5", "--background-rise", "0"][..],
             1.5,
             0.0,
+            1.0,
+            1.0,
         ),
-        (&["--feature", "value"][..], 3.0, 0.0),
+        (&["--feature", "value"][..], 3.0, 0.0, 1.0, 1.0),
         (
             &["--lag-exponent", "0.633", "--detection-floor", "0.2"][..],
             3.0,
             0.5,
+            0.633,
+            0.2,
         ),
     ] {
         let mut args = vec![
@@ -436,12 +441,14 @@ fn localize_writes_the_run_and_its_pictures() {
             "{flags:?}"
         );
         assert_eq!(run["config"]["ste"]["background_rise"], rise, "{flags:?}");
-        let [exponent, floor] = match flags.contains(&"--lag-exponent") {
-            true => [0.633, 0.2],
-            false => [1.0, 1.0],
-        };
-        assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], exponent);
-        assert_eq!(run["config"]["ste"]["detection_floor_ppm"], floor);
+        assert_eq!(
+            run["config"]["ste"]["sensor_lag_exponent"], exponent,
+            "{flags:?}"
+        );
+        assert_eq!(
+            run["config"]["ste"]["detection_floor_ppm"], floor,
+            "{flags:?}"
+        );
     }
 
     let iterations = run["iterations"].as_u64().unwrap() as usize;

@@ -71,7 +71,8 @@ impl Case {
         }
     }
 
-    fn tensors(&self, device: &Device) -> (Tensor<4>, Tensor<4>, Tensor<1>, Tensor<4>) {
+    /// The case's input, weights and bias, and `r` (the upstream gradient) as tensors.
+    fn tensors(&self, r: &[f32], device: &Device) -> (Tensor<4>, Tensor<4>, Tensor<1>, Tensor<4>) {
         let ConvShape {
             batch,
             cin,
@@ -87,7 +88,7 @@ impl Case {
             t4(&self.x, [batch, cin, h, w]),
             t4(&self.w, [cout, cin, k, k]),
             Tensor::<1>::from_data(TensorData::new(self.b.clone(), [cout]), device),
-            t4(&self.r, [batch, cout, h, w]),
+            t4(r, [batch, cout, h, w]),
         )
     }
 
@@ -112,7 +113,7 @@ impl Case {
         // gradient comes back from those outputs in either.
         let kinks: Vec<bool> = match relu_on {
             true => {
-                let (x, w, b, _) = self.tensors(&dev);
+                let (x, w, b, _) = self.tensors(&self.r, &dev);
                 let pre = values(self.burn_forward(x, w, b, false).inner());
                 let top = pre.iter().fold(0f32, |m, v| m.max(v.abs()));
                 pre.iter().map(|p| p.abs() < 1e-5 * top).collect()
@@ -126,14 +127,7 @@ impl Case {
             .map(|(&r, &k)| if k { 0.0 } else { r })
             .collect();
         let run = |own: bool| {
-            let (x, w, b, _) = self.tensors(&dev);
-            let [batch, cout, h, w_] = [
-                self.shape.batch,
-                self.shape.cout,
-                self.shape.h,
-                self.shape.w,
-            ];
-            let r = Tensor::<4>::from_data(TensorData::new(r.clone(), [batch, cout, h, w_]), &dev);
+            let (x, w, b, r) = self.tensors(&r, &dev);
             let (x, w, b) = (x.require_grad(), w.require_grad(), b.require_grad());
             let out = if own {
                 conv2d_same(x.clone(), w.clone(), b.clone(), relu_on)
