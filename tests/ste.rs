@@ -123,6 +123,7 @@ fn the_lag_in_the_sensors_response_orders_its_readings() {
     );
     let ours = spearman(&readings, &lagged(exponent));
     let concentration = spearman(&readings, &lagged(1.0));
+    eprintln!("Spearman with the lag in c^{exponent}: {ours}; in c: {concentration}");
     assert!(
         ours > 0.95 && 1.0 - ours < 0.5 * (1.0 - concentration),
         "Spearman with the lag in c^{exponent}: {ours}; in c: {concentration}"
