@@ -75,6 +75,69 @@ fn single_readings_are_intermittent_and_reproducible() {
     );
 }
 
+/// Read through a MOX sensor's concave response, the intermittent plume's mean reading lies
+/// below the reading of its mean field (Jensen's inequality), and by how much depends on where:
+/// most at the plume's edge, where puffs of about the centre's strength come rarely, so that
+/// the mean reading there is about linear in the mean concentration (log-log slope near 1,
+/// against the response's 0.63), and more near the source than far downwind. So no single
+/// function of the mean field orders the mean readings as they are ordered: the readings look
+/// narrower than the mean plume, and peak further downwind. `cargo test --release
+/// mean_reading -- --nocapture` prints the figures.
+#[test]
+fn the_mean_reading_of_an_intermittent_plume_is_lowest_against_its_mean_at_the_edge() {
+    use plumenet::ste::{MoxParams, SensorPreset};
+    let l = empty_tunnel();
+    let w = WindField::solve(&l).unwrap();
+    let mox = MoxParams::for_preset(SensorPreset::SensorII);
+    let rise = |c: f64| mox.steady_voltage(c) - mox.steady_voltage(0.0);
+    // Along the centreline near the source and far downwind; across the wind 3 m downwind,
+    // from the centre out to the edge.
+    let probes = [
+        (3.5, 2.0625),
+        (12.0, 2.0625),
+        (6.0, 2.0625),
+        (6.0, 0.8125),
+        (6.0, 0.3125),
+    ];
+    let mut plume = FilamentPlume::new(&l, &w, SOURCE, FilamentConfig::default(), 7).unwrap();
+    plume.advance(60.0);
+    let steps = 20_000;
+    let (mut c, mut v) = ([0.0; 5], [0.0; 5]);
+    for _ in 0..steps {
+        plume.step();
+        for (k, &(x, y)) in probes.iter().enumerate() {
+            let now = plume.concentration_at(x, y);
+            c[k] += now / f64::from(steps);
+            v[k] += rise(now) / f64::from(steps);
+        }
+    }
+    let ratio: Vec<f64> = (0..5).map(|k| v[k] / rise(c[k])).collect();
+    for (k, &(x, y)) in probes.iter().enumerate() {
+        eprintln!(
+            "({x}, {y}): mean c {:.3}, mean reading {:.3} V, reading of the mean {:.3} V, ratio {:.2}",
+            c[k],
+            v[k],
+            rise(c[k]),
+            ratio[k]
+        );
+    }
+    let slope = |f: &dyn Fn(usize) -> f64| (f(3) / f(4)).ln() / (c[3] / c[4]).ln();
+    let (mean_reading, reading_of_mean) = (slope(&|k| v[k]), slope(&|k| rise(c[k])));
+    eprintln!(
+        "across the edge, log-log slope against the mean c: mean reading {mean_reading:.2}, reading of the mean {reading_of_mean:.2}"
+    );
+    assert!(ratio.iter().all(|&r| r < 1.0), "ratios {ratio:?}");
+    assert!(ratio[0] < ratio[1] - 0.05, "near the source {ratio:?}");
+    assert!(
+        ratio[4] < ratio[3] && ratio[3] < ratio[2] - 0.15,
+        "across {ratio:?}"
+    );
+    assert!(
+        mean_reading > 0.8 && reading_of_mean < 0.7,
+        "slopes {mean_reading} and {reading_of_mean}"
+    );
+}
+
 #[test]
 fn no_gas_inside_obstacles_and_bad_sources_rejected() {
     let l = wind_tunnel();
