@@ -78,10 +78,10 @@ fn single_readings_are_intermittent_and_reproducible() {
 /// Read through a MOX sensor's concave response, the intermittent plume's mean reading lies
 /// below the reading of its mean field (Jensen's inequality), and by how much depends on where:
 /// most at the plume's edge, where puffs of about the centre's strength come rarely, so that
-/// the mean reading there is about linear in the mean concentration (log-log slope near 1,
-/// against the response's 0.63), and more near the source than far downwind. So no single
-/// function of the mean field orders the mean readings as they are ordered: the readings look
-/// narrower than the mean plume, and peak further downwind. `cargo test --release
+/// the mean reading there is nearly linear in the mean concentration (a log-log slope of about
+/// 0.85, against 0.58 for the reading of the mean), and more near the source than far
+/// downwind. So the mean readings are not the response of the mean field: they look narrower
+/// than it, and fall off more slowly downwind. `cargo test --release
 /// mean_reading -- --nocapture` prints the figures.
 #[test]
 fn the_mean_reading_of_an_intermittent_plume_is_lowest_against_its_mean_at_the_edge() {
