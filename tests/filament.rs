@@ -102,7 +102,7 @@ fn the_mean_reading_of_an_intermittent_plume_is_lowest_against_its_mean_at_the_e
     let mut plume = FilamentPlume::new(&l, &w, SOURCE, FilamentConfig::default(), 7).unwrap();
     plume.advance(60.0);
     let steps = 20_000;
-    let (mut c, mut v) = ([0.0; 5], [0.0; 5]);
+    let (mut c, mut v) = (probes.map(|_| 0.0), probes.map(|_| 0.0));
     for _ in 0..steps {
         plume.step();
         for (k, &(x, y)) in probes.iter().enumerate() {
@@ -111,7 +111,7 @@ fn the_mean_reading_of_an_intermittent_plume_is_lowest_against_its_mean_at_the_e
             v[k] += rise(now) / f64::from(steps);
         }
     }
-    let ratio: Vec<f64> = (0..5).map(|k| v[k] / rise(c[k])).collect();
+    let ratio: Vec<f64> = c.iter().zip(&v).map(|(&c, &v)| v / rise(c)).collect();
     for (k, &(x, y)) in probes.iter().enumerate() {
         eprintln!(
             "({x}, {y}): mean c {:.3}, mean reading {:.3} V, reading of the mean {:.3} V, ratio {:.2}",
