@@ -68,6 +68,9 @@ enum Command {
     Ros2Node(ste::Ros2NodeArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(ste::ExperimentArgs),
+    /// Two studies run on the same seeds, run by run: the paired difference of their errors
+    /// with its standard error, and sign tests.
+    Compare(ste::CompareArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
     BenchSte(ste::BenchSteArgs),
     /// PlumeNet's bank and training throughput, side by side with the same network in PyTorch.
@@ -343,6 +346,7 @@ impl Cli {
             #[cfg(feature = "ros2")]
             Command::Ros2Node(a) => ste::ros2_node(a),
             Command::Experiment(a) => ste::experiment(a),
+            Command::Compare(a) => ste::compare(a),
             Command::BenchSte(a) => ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),
         }

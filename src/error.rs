@@ -64,6 +64,14 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// A study's `runs.csv` is malformed or empty.
+    #[error("bad study runs {path}: {reason}")]
+    Study {
+        /// The file involved.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// A figure could not be drawn.
     #[error("cannot draw the figure: {0}")]
     Figure(String),

@@ -57,3 +57,29 @@ impl BoxStats {
         })
     }
 }
+
+/// Mean of the paired differences `other - base` and its standard error (the differences'
+/// sample standard deviation over `sqrt n`; 0 for a single pair). The slices must be equally
+/// long and not empty.
+pub fn paired_difference(base: &[f64], other: &[f64]) -> (f64, f64) {
+    assert_eq!(base.len(), other.len(), "paired samples differ in length");
+    let d: Vec<f64> = base.iter().zip(other).map(|(a, b)| b - a).collect();
+    let (mean, std) = mean_std(&d);
+    (mean, std / (d.len() as f64).sqrt())
+}
+
+/// Two-sided exact sign test: the chance, when each of `n` trials falls either way with
+/// probability 1/2, of a split at least as uneven as `k` against `n - k` (1 for `n = 0`).
+pub fn sign_test(k: usize, n: usize) -> f64 {
+    assert!(k <= n, "{k} successes of {n} trials");
+    let tail = k.min(n - k);
+    // ln C(n, i) - n ln 2, term by term.
+    let mut ln_term = -(n as f64) * std::f64::consts::LN_2;
+    let mut sum = 0.0;
+    for i in 0..=tail {
+        sum += ln_term.exp();
+        ln_term += ((n - i) as f64).ln() - ((i + 1) as f64).ln();
+    }
+    // An even split's middle term is counted on both sides; the whole cannot exceed 1.
+    (2.0 * sum).min(1.0)
+}

@@ -13,7 +13,8 @@ use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::belief::{BeliefPlot, belief_panel, write_episode_pictures};
 use plumenet::report::boxplot::{BoxPanel, group_values};
 
-use plumenet::report::{Panel, save_figure};
+use plumenet::report::{Panel, markdown_table, save_figure};
+use plumenet::ste::compare;
 use plumenet::ste::experiment::{
     Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
 };
@@ -880,6 +881,51 @@ pub fn survey(a: SurveyArgs) -> Result<()> {
 }
 
 #[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// The base study's runs.csv.
+    base: PathBuf,
+    /// The other study's runs.csv (the same --seed, other settings).
+    other: PathBuf,
+    /// Only the base study's runs with this plume model (`solver` or `plumenet`, for a study
+    /// run with --with-solver).
+    #[arg(long)]
+    base_model: Option<String>,
+    /// Only the other study's runs with this plume model.
+    #[arg(long)]
+    other_model: Option<String>,
+    /// Also write the comparison as CSV.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+}
+
+/// `plumenet compare`: two studies run by run.
+pub fn compare(a: CompareArgs) -> Result<()> {
+    let load = |path: &PathBuf, model: &Option<String>| -> Result<Vec<RunRow>> {
+        let mut rows = compare::load_runs(path)?;
+        if let Some(m) = model {
+            rows.retain(|r| &r.model == m);
+            anyhow::ensure!(
+                !rows.is_empty(),
+                "{} holds no run of plume model {m}",
+                path.display()
+            );
+        }
+        Ok(rows)
+    };
+    let base = load(&a.base, &a.base_model)?;
+    let other = load(&a.other, &a.other_model)?;
+    let (rows, [base_alone, other_alone]) = compare::compare(&base, &other)?;
+    if base_alone + other_alone > 0 {
+        eprintln!("left out: {base_alone} base and {other_alone} other runs without a twin");
+    }
+    if let Some(path) = &a.csv {
+        io::write_csv(path, &rows)?;
+    }
+    print!("{}", compare::compare_table(&rows));
+    Ok(())
+}
+
+#[derive(Debug, Args)]
 pub struct ExperimentArgs {
     /// Layout JSON files, comma-separated: the study runs in each [default:
     /// data/layouts/wind-tunnel.json, unless --rooms-of is given].
@@ -1067,30 +1113,41 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
 
 /// The study's summary as a Markdown table.
 fn summary_table(summary: &[SummaryRow]) -> String {
-    let mut t = String::from(
-        "| layout | model | reality | paths | feature | sensor | runs | error mean ± std (m) | median (m) | highest reading (m) | centre (m) | iterations mean ± std | converged |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    for s in summary {
-        t.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.2} ± {:.2} | {:.2} | {:.2} | {:.2} | {:.1} ± {:.1} | {:.0}% |\n",
-            s.layout,
-            s.model,
-            s.reality,
-            s.paths,
-            s.feature,
-            s.sensor,
-            s.runs,
-            s.error_mean_m,
-            s.error_std_m,
-            s.error_median_m,
-            s.highest_error_mean_m,
-            s.centre_error_mean_m,
-            s.iterations_mean,
-            s.iterations_std,
-            100.0 * s.converged_share
-        ));
-    }
-    t
+    let header = [
+        "layout",
+        "model",
+        "reality",
+        "paths",
+        "feature",
+        "sensor",
+        "runs",
+        "error mean ± std (m)",
+        "median (m)",
+        "highest reading (m)",
+        "centre (m)",
+        "iterations mean ± std",
+        "converged",
+    ];
+    markdown_table(
+        &header,
+        summary.iter().map(|s| {
+            vec![
+                s.layout.clone(),
+                s.model.clone(),
+                s.reality.clone(),
+                s.paths.clone(),
+                s.feature.clone(),
+                s.sensor.clone(),
+                s.runs.to_string(),
+                format!("{:.2} ± {:.2}", s.error_mean_m, s.error_std_m),
+                format!("{:.2}", s.error_median_m),
+                format!("{:.2}", s.highest_error_mean_m),
+                format!("{:.2}", s.centre_error_mean_m),
+                format!("{:.1} ± {:.1}", s.iterations_mean, s.iterations_std),
+                format!("{:.0}%", 100.0 * s.converged_share),
+            ]
+        }),
+    )
 }
 
 #[derive(Debug, Args)]

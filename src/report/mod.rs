@@ -1,6 +1,7 @@
 //! Figures drawn with `plotters`: fields over the arena ([`field`]), STE beliefs ([`belief`]) and
 //! the study's box plots ([`boxplot`]); PNG, or SVG when the file name ends in `.svg`. Text is
-//! DejaVu Sans, embedded by the `dejavu` crate: no system fonts needed.
+//! DejaVu Sans, embedded by the `dejavu` crate: no system fonts needed. Tables are Markdown
+//! ([`markdown_table`]).
 
 use std::path::Path;
 use std::sync::Once;
@@ -19,6 +20,18 @@ pub mod boxplot;
 pub mod field;
 
 pub use field::{FieldPanel, FieldPlot, LOG_DECADES};
+
+/// A Markdown table: the header row, its rule, then one line per row of cells.
+pub fn markdown_table(header: &[&str], rows: impl IntoIterator<Item = Vec<String>>) -> String {
+    let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
+    let head: Vec<String> = header.iter().map(|h| h.to_string()).collect();
+    let mut t = line(&head);
+    t.push_str(&format!("|{}\n", "---|".repeat(header.len())));
+    for row in rows {
+        t.push_str(&line(&row));
+    }
+    t
+}
 
 /// The font family of every figure.
 pub const FONT: &str = "sans-serif";

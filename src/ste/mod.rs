@@ -5,10 +5,12 @@
 //! the termination rule, [`robot`] the occupancy grid and A* paths, [`planner`] the belief
 //! clustering and baseline planners, [`reality`] what the robot senses (and how it may depart
 //! from the model), [`run`] one simulated episode, [`survey`] a raster survey flown through
-//! reality, [`replay`] the STE over a logged run, and [`baseline`] the simple guesses every
-//! report shows beside the STE.
+//! reality, [`replay`] the STE over a logged run, [`baseline`] the simple guesses every
+//! report shows beside the STE, [`experiment`] the paper's study and [`compare`] the paired
+//! comparison of two studies.
 
 pub mod baseline;
+pub mod compare;
 pub mod experiment;
 pub mod features;
 pub mod planner;
