@@ -30,9 +30,8 @@
 //! Neither form models the plume's intermittency: toward a plume's edge the puffs come rarely
 //! but about as strong, so the mean reading there is nearly linear in the mean concentration,
 //! and the pair's estimates are wider than the readings (their wind-speed marginal leans to a
-//! faster wind); and with a background the pair costs on the unseen rooms' planner paths. So
-//! the exponent and the lower floor stay options (the README's "The lag in the sensor's
-//! response" has the figures).
+//! faster wind). So the exponent and the lower floor stay options (the README's "The lag in
+//! the sensor's response" has the figures).
 //!
 //! Estimated values below a detection floor (1 ppm) are then set to zero.
 //!
@@ -167,9 +166,8 @@ pub struct SteParams {
     /// concentration itself. The response's exponent alone helps in the paper arena but not
     /// in unseen rooms; with [`SteParams::detection_floor_ppm`] lowered to where the readings'
     /// clean-air band ends (0.2 ppm for Sensor II) it helps without mismatch in both and is
-    /// even with all mismatches at once, but costs with a background on the unseen rooms'
-    /// planner paths and leans the wind-speed marginal to faster winds (the README's "The lag
-    /// in the sensor's response" has the figures).
+    /// even with all mismatches at once, but leans the wind-speed marginal to faster winds
+    /// (the README's "The lag in the sensor's response" has the figures).
     #[serde(default = "concentration_lag")]
     pub sensor_lag_exponent: f64,
     /// Estimated concentrations below this (ppm) are set to zero: a sensor cannot tell them
