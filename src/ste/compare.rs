@@ -9,14 +9,14 @@
 //! which estimate ended closer (runs ending equally close left out), and which runs ended
 //! more than [`FAR_M`] off in one study but not in the other.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::report::markdown_table;
-use crate::stats::{paired_difference, sign_test};
+use crate::stats::{mean_std, paired_difference, sign_test};
 use crate::ste::experiment::RunRow;
 
 /// A run ending further off than this (m) counts as far off.
@@ -140,8 +140,14 @@ fn index<'a>(runs: &'a [RunRow], name: &str) -> Result<HashMap<PairKey, &'a RunR
 pub fn compare(base: &[RunRow], other: &[RunRow]) -> Result<(Vec<CompareRow>, [usize; 2])> {
     let others = index(other, "other")?;
     index(base, "base")?;
-    let mut groups: BTreeMap<usize, (Vec<&RunRow>, Vec<&RunRow>)> = BTreeMap::new();
-    let mut order: Vec<(String, String, String, String)> = Vec::new();
+    // One group per reality, paths, feature and sensor, in the base study's order, with the
+    // paired runs of each study.
+    type Group<'a> = (
+        (String, String, String, String),
+        Vec<&'a RunRow>,
+        Vec<&'a RunRow>,
+    );
+    let mut groups: Vec<Group<'_>> = Vec::new();
     let mut paired = 0;
     for b in base {
         let Some(o) = others.get(&key(b)) else {
@@ -154,16 +160,15 @@ pub fn compare(base: &[RunRow], other: &[RunRow]) -> Result<(Vec<CompareRow>, [u
             b.feature.clone(),
             b.sensor.clone(),
         );
-        let slot = match order.iter().position(|x| *x == g) {
+        let slot = match groups.iter().position(|(x, _, _)| *x == g) {
             Some(i) => i,
             None => {
-                order.push(g);
-                order.len() - 1
+                groups.push((g, Vec::new(), Vec::new()));
+                groups.len() - 1
             }
         };
-        let entry = groups.entry(slot).or_default();
-        entry.0.push(b);
-        entry.1.push(o);
+        groups[slot].1.push(b);
+        groups[slot].2.push(o);
     }
     if paired == 0 {
         return Err(Error::Parameter(
@@ -174,8 +179,7 @@ pub fn compare(base: &[RunRow], other: &[RunRow]) -> Result<(Vec<CompareRow>, [u
     }
     let rows = groups
         .into_iter()
-        .map(|(slot, (b, o))| {
-            let (reality, paths, feature, sensor) = order[slot].clone();
+        .map(|((reality, paths, feature, sensor), b, o)| {
             let eb: Vec<f64> = b.iter().map(|r| r.error_m).collect();
             let eo: Vec<f64> = o.iter().map(|r| r.error_m).collect();
             let (difference_mean_m, difference_se_m) = paired_difference(&eb, &eo);
@@ -189,7 +193,7 @@ pub fn compare(base: &[RunRow], other: &[RunRow]) -> Result<(Vec<CompareRow>, [u
                     .count()
             };
             let (base_only, other_only) = (far_only(&eb, &eo), far_only(&eo, &eb));
-            let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+            let mean = |v: &[f64]| mean_std(v).0;
             let iterations =
                 |v: &[&RunRow]| mean(&v.iter().map(|r| r.iterations as f64).collect::<Vec<_>>());
             CompareRow {
