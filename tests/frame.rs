@@ -207,7 +207,9 @@ fn plumenet_bank_turns_with_the_layout() {
 }
 
 /// The STE with the exact bank finds a source in the paper arena turned so that the wind comes
-/// from the east, from a start far downwind (the planner's upwind goals turn too).
+/// from the east, from a start far downwind (the planner's upwind goals turn too): five runs
+/// end within a metre of it on the median, none further than 2 m (a planner that went the
+/// wrong way would end metres off or at its iteration limit).
 #[test]
 fn ste_localises_with_wind_from_the_east() {
     let layout = turned(&wind_tunnel(), WindFrom::East);
@@ -216,6 +218,13 @@ fn ste_localises_with_wind_from_the_east() {
     let (sx, sy) = frame.from_canonical(4.5, 2.5);
     let (x0, y0) = frame.from_canonical(15.0, 1.0);
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let ep = run_episode(&world, &config, [sx, sy], [x0, y0], 0, false).unwrap();
-    assert!(ep.error_m < 1.0, "error {} m", ep.error_m);
+    let mut errors: Vec<f64> = (0..5)
+        .map(|seed| {
+            run_episode(&world, &config, [sx, sy], [x0, y0], seed, false)
+                .unwrap()
+                .error_m
+        })
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    assert!(errors[2] < 1.0 && errors[4] < 2.0, "errors {errors:?} m");
 }

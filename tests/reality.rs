@@ -408,10 +408,14 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
     );
 }
 
-/// The wind speed is identifiable from the readings' ranks: replaying a survey over banks at
-/// half, once and twice the layout's speed puts most of the mass on reality's speed. (The
-/// source sits on a candidate: with a coarse candidate grid a wider plume can make up for a
-/// source between candidates, and the speed is no longer told apart from the position.)
+/// The wind speed is identifiable from the readings' ranks: replaying surveys over banks at
+/// half, once and twice the layout's speed puts most of the mass on reality's speed, on average
+/// over eight surveys (single surveys scatter: a slow wind's higher concentrations partly
+/// resemble a rising background, so beside the background nuisance, rank's default, one survey
+/// in four puts less than half on it). `cargo test --release wind_speed_posterior --
+/// --nocapture` prints the shares. (The source sits on a candidate: with a coarse candidate grid
+/// a wider plume can make up for a source between candidates, and the speed is no longer told
+/// apart from the position.)
 #[test]
 fn the_wind_speed_posterior_finds_realitys_speed() {
     use plumenet::plume::PhysicsSolver;
@@ -423,7 +427,13 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
     let source = [4.625, 2.375];
     assert!(world.sampler.candidates().contains(&source));
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    assert_eq!(config.ste.background_rise, 0.5);
+    let alone = SteParams {
+        background_rise: 0.0,
+        ..config.ste
+    };
     let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let seeds = 1..=8u64;
     for (k, &scale) in scales.iter().enumerate() {
         let reality = world
             .with_mismatch(Mismatch {
@@ -431,23 +441,38 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
                 ..Mismatch::NONE
             })
             .unwrap();
-        let samples = fly(&reality.reality, &survey.path, source, &config.flight(), 3).unwrap();
-        // Alone, the speed takes most of the mass; beside the background nuisance (rank's
-        // default), which a slower wind's higher concentrations partly resemble, it still
-        // takes the most.
-        let alone = SteParams {
-            background_rise: 0.0,
-            ..config.ste
-        };
-        assert_eq!(config.ste.background_rise, 0.5);
-        for (ste, least) in [(alone, 0.6), (config.ste, 0.5)] {
-            let est = replay(world.samplers(), ste, config.robot.radius_m, &samples).unwrap();
-            let w = est.bank_posterior();
-            eprintln!(
-                "reality at x{scale}, background rise {}: {w:?}",
-                ste.background_rise
+        // The mean posterior over the surveys, alone and beside the background nuisance.
+        let mut mean = [[0.0; 3]; 2];
+        for seed in seeds.clone() {
+            let samples = fly(
+                &reality.reality,
+                &survey.path,
+                source,
+                &config.flight(),
+                seed,
+            )
+            .unwrap();
+            for (m, ste) in mean.iter_mut().zip([alone, config.ste]) {
+                let est = replay(world.samplers(), ste, config.robot.radius_m, &samples).unwrap();
+                let w = est.bank_posterior();
+                eprintln!(
+                    "reality at x{scale}, seed {seed}, background rise {}: {w:.2?}",
+                    ste.background_rise
+                );
+                for (m, w) in m.iter_mut().zip(w) {
+                    *m += w / seeds.clone().count() as f64;
+                }
+            }
+        }
+        eprintln!(
+            "reality at x{scale}: mean alone {:.2?}, beside the background {:.2?}",
+            mean[0], mean[1]
+        );
+        for (m, least) in mean.iter().zip([0.7, 0.55]) {
+            assert!(
+                m[k] > least,
+                "reality at x{scale}: mean bank posterior {m:?}"
             );
-            assert!(w[k] > least, "reality at x{scale}: bank posterior {w:?}");
         }
     }
 }
@@ -623,8 +648,8 @@ fn the_spread_bank_is_nearer_the_meandering_plumes_average() {
 
 /// The spread's posterior: replaying surveys over banks spread by 0 and 30 degrees puts most of
 /// the mass on no spread when the wind holds its direction (every source and seed here), and on
-/// the spread when it wanders (for a source mid-arena; a source near a wall or an obstacle can
-/// hide the wander); episodes report the spread's posterior.
+/// the spread when it wanders (for a source mid-arena, on average and in most surveys; a source
+/// near a wall or an obstacle can hide the wander); episodes report the spread's posterior.
 #[test]
 fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
     use plumenet::ste::replay::replay;
@@ -666,9 +691,18 @@ fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
             let p = spread_mass(&world, source, seed);
             assert!(p < 0.5, "steady wind, {source:?}, seed {seed}: spread {p}");
         }
-        let p = spread_mass(&wandering, [4.625, 2.375], seed);
-        assert!(p > 0.5, "wandering wind, seed {seed}: spread {p}");
     }
+    // A wandering wind's surveys scatter more (a 20 s wander over a 10-minute survey): on
+    // average, and in most of them, the spread takes most of the mass.
+    let wander: Vec<f64> = (1..=10)
+        .map(|seed| spread_mass(&wandering, [4.625, 2.375], seed))
+        .collect();
+    let mean = wander.iter().sum::<f64>() / wander.len() as f64;
+    let most = wander.iter().filter(|&&p| p > 0.5).count();
+    assert!(
+        mean > 0.6 && most >= 6,
+        "wandering wind: spread {wander:.2?}"
+    );
     let ep =
         plumenet::ste::run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false).unwrap();
     assert_eq!(ep.wind_spreads.len(), 2);

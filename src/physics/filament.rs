@@ -27,7 +27,21 @@
 //!
 //! Side walls and obstacle faces reflect filaments (and the side walls reflect their kernels by
 //! images, so no mass leaks through a wall); filaments leave through the inlet (c = 0 there) and
-//! the outlet. Every random draw comes from a seeded ChaCha8 generator.
+//! the outlet. Gas never passes through an obstacle, however thin:
+//! - a filament's move whose path passes an obstacle is taken in sub-steps of at most half a
+//!   cell, each reflected off the obstacle face it crosses, so a long random-walk step cannot
+//!   jump over a wall one or two cells thick (checking only where the whole step lands let
+//!   filaments through 0.25 m walls);
+//! - a kernel counts at a point only if the filament sees it: the segment between them crosses no
+//!   obstacle cell (sampled every half cell, so no wall a cell thick is missed). The images across
+//!   the side walls share their filament's line of sight;
+//! - a kernel stops widening at `max_sigma_m`, after which the walk carries all of `D` (the
+//!   ensemble average is unchanged, since `D_w + D_g = D` at every age), so that old filaments
+//!   in slow dead zones do not grow into metre-wide kernels whose shadowed part the line of sight
+//!   throws away.
+//!
+//! Every random draw comes from a seeded ChaCha8 generator; the sub-steps and the cap reuse the
+//! draws of the whole step, so the random stream is the same as without them.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -49,6 +63,9 @@ pub struct FilamentConfig {
     pub walk_fraction: f64,
     /// Initial filament width (m).
     pub initial_sigma_m: f64,
+    /// Largest filament width (m): past it the kernel stops widening and the random walk
+    /// carries the whole diffusivity.
+    pub max_sigma_m: f64,
     /// Integration time step (s); 0.1 s matches the sensor's 10 Hz.
     pub dt_s: f64,
     /// Standard deviation of the wind direction's wander (degrees, at most 90; 0 keeps the
@@ -70,6 +87,7 @@ impl Default for FilamentConfig {
             release_rate_hz: 8.0,
             walk_fraction: 0.95,
             initial_sigma_m: 0.05,
+            max_sigma_m: 0.5,
             dt_s: 0.1,
             meander_deg: 0.0,
             meander_time_s: 20.0,
@@ -110,8 +128,9 @@ impl FilamentPlume {
     ///
     /// # Errors
     /// [`Error::Source`] when the source is not in free space; [`Error::Parameter`] for
-    /// non-positive rates, widths, time step or time constants, a walk fraction outside
-    /// `[0, 1]`, a meander outside `[0, 90]` degrees or a negative background.
+    /// non-positive rates, widths, time step or time constants, a largest width below the
+    /// initial one, a walk fraction outside `[0, 1]`, a meander outside `[0, 90]` degrees or a
+    /// negative background.
     pub fn new(
         layout: &Layout,
         wind: &WindField,
@@ -129,6 +148,7 @@ impl FilamentPlume {
             config.background_time_s,
         ];
         let valid = positive.iter().all(|v| v.is_finite() && *v > 0.0)
+            && config.max_sigma_m >= config.initial_sigma_m
             && (0.0..=1.0).contains(&config.walk_fraction)
             && (0.0..=90.0).contains(&config.meander_deg)
             && config.background.is_finite()
@@ -218,30 +238,29 @@ impl FilamentPlume {
                 age: 0.0,
             });
         }
-        let walk = (2.0 * self.config.walk_fraction * self.layout.diffusivity() * dt).sqrt();
-        let (w, h) = (self.layout.width(), self.layout.height());
+        let diffusivity = self.layout.diffusivity();
+        let young_walk = (2.0 * self.config.walk_fraction * diffusivity * dt).sqrt();
+        let old_walk = (2.0 * diffusivity * dt).sqrt();
+        let widest = self.config.max_sigma_m * self.config.max_sigma_m;
         let mut kept = Vec::with_capacity(self.filaments.len());
         for f in std::mem::take(&mut self.filaments) {
             let (u1, v1) = velocity(&self.wind, f.x, f.y);
             let (u2, v2) = velocity(&self.wind, f.x + 0.5 * dt * u1, f.y + 0.5 * dt * v1);
             let nx: f64 = StandardNormal.sample(&mut self.rng);
             let ny: f64 = StandardNormal.sample(&mut self.rng);
-            let x = f.x + dt * u2 + walk * nx;
-            let mut y = f.y + dt * v2 + walk * ny;
-            if x <= 0.0 || x >= w {
-                continue;
+            let walk = if self.kernel_variance(f.age) < widest {
+                young_walk
+            } else {
+                old_walk
+            };
+            let step = (dt * u2 + walk * nx, dt * v2 + walk * ny);
+            if let Some((x, y)) = self.walk((f.x, f.y), step) {
+                kept.push(Filament {
+                    x,
+                    y,
+                    age: f.age + dt,
+                });
             }
-            if y < 0.0 {
-                y = -y;
-            } else if y > h {
-                y = 2.0 * h - y;
-            }
-            let (x, y) = self.reflect_off_obstacles((f.x, f.y), (x, y.clamp(0.0, h)));
-            kept.push(Filament {
-                x,
-                y,
-                age: f.age + dt,
-            });
         }
         self.filaments = kept;
         self.time += dt;
@@ -253,6 +272,70 @@ impl FilamentPlume {
         for _ in 0..steps {
             self.step();
         }
+    }
+
+    /// The variance of a filament's kernel at an age (m^2): growing at `2 (1 - walk_fraction) D`
+    /// up to `max_sigma_m` squared.
+    fn kernel_variance(&self, age: f64) -> f64 {
+        let s0 = self.config.initial_sigma_m * self.config.initial_sigma_m;
+        let grow = 2.0 * (1.0 - self.config.walk_fraction) * self.layout.diffusivity();
+        (s0 + grow * age).min(self.config.max_sigma_m * self.config.max_sigma_m)
+    }
+
+    /// Moves a filament by `step`, mirrored at the side walls and the obstacle faces it
+    /// crosses; `None` when it leaves through the inlet or the outlet. A move whose path passes
+    /// an obstacle is taken in sub-steps of at most half a cell, each mirrored (the rest of the
+    /// move continues mirrored too), so that it cannot jump over a thin wall; any other move is
+    /// taken whole, exactly as before the sub-steps existed.
+    fn walk(&self, from: (f64, f64), step: (f64, f64)) -> Option<(f64, f64)> {
+        let (to, _) = self.mirrored_move(from, step)?;
+        if self.in_sight(from, to) {
+            return Some(to);
+        }
+        let n = (step.0.abs().max(step.1.abs()) / (0.5 * self.layout.cell())).ceil();
+        let mut sub = (step.0 / n, step.1 / n);
+        let mut at = from;
+        for _ in 0..n as usize {
+            (at, sub) = self.mirrored_move(at, sub)?;
+        }
+        Some(at)
+    }
+
+    /// One straight move, mirrored at a side wall and at an obstacle face it ends beyond:
+    /// the new position and the move's direction after the mirrors, or `None` when it leaves
+    /// through the inlet or the outlet.
+    fn mirrored_move(
+        &self,
+        at: (f64, f64),
+        (dx, mut dy): (f64, f64),
+    ) -> Option<((f64, f64), (f64, f64))> {
+        let h = self.layout.height();
+        let x = at.0 + dx;
+        let mut y = at.1 + dy;
+        if x <= 0.0 || x >= self.layout.width() {
+            return None;
+        }
+        if y < 0.0 || y > h {
+            y = if y < 0.0 { -y } else { 2.0 * h - y };
+            dy = -dy;
+        }
+        let to = (x, y.clamp(0.0, h));
+        let next = self.reflect_off_obstacles(at, to);
+        let dx = if next.0 == to.0 { dx } else { -dx };
+        let dy = if next.1 == to.1 { dy } else { -dy };
+        Some((next, (dx, dy)))
+    }
+
+    /// Whether the segment between two points crosses no obstacle cell, sampled every half cell
+    /// or closer along its longer axis (so a wall one cell thick is never stepped over).
+    fn in_sight(&self, from: (f64, f64), to: (f64, f64)) -> bool {
+        let (dx, dy) = (to.0 - from.0, to.1 - from.1);
+        let n = (dx.abs().max(dy.abs()) / (0.5 * self.layout.cell())).ceil() as usize;
+        (1..n).all(|k| {
+            let t = k as f64 / n as f64;
+            let (j, i) = self.layout.cell_of(from.0 + t * dx, from.1 + t * dy);
+            !self.layout.is_solid(j, i)
+        })
     }
 
     /// Mirrors a move that ends in an obstacle cell across the face it crossed; if that still
@@ -303,21 +386,19 @@ impl FilamentPlume {
             return 0.0;
         }
         let mass = self.config.source_rate / self.config.release_rate_hz;
-        let grow = 2.0 * (1.0 - self.config.walk_fraction) * self.layout.diffusivity();
-        let s0 = self.config.initial_sigma_m * self.config.initial_sigma_m;
         let h = self.layout.height();
         let plume: f64 = self
             .filaments
             .iter()
             .map(|f| {
-                let var = s0 + grow * f.age;
+                let var = self.kernel_variance(f.age);
                 let reach = 25.0 * var; // 5 sigma, squared
                 let dx2 = (x - f.x) * (x - f.x);
                 if dx2 > reach {
                     return 0.0;
                 }
                 // The filament and its images across the two side walls.
-                [f.y, -f.y, 2.0 * h - f.y]
+                let sum: f64 = [f.y, -f.y, 2.0 * h - f.y]
                     .iter()
                     .map(|&fy| {
                         let d2 = dx2 + (y - fy) * (y - fy);
@@ -327,9 +408,12 @@ impl FilamentPlume {
                             (-d2 / (2.0 * var)).exp()
                         }
                     })
-                    .sum::<f64>()
-                    * mass
-                    / (2.0 * std::f64::consts::PI * var)
+                    .sum();
+                if sum > 0.0 && self.in_sight((f.x, f.y), (x, y)) {
+                    sum * mass / (2.0 * std::f64::consts::PI * var)
+                } else {
+                    0.0
+                }
             })
             .sum();
         if self.config.background > 0.0 {
