@@ -411,11 +411,11 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
 /// The wind speed is identifiable from the readings' ranks: replaying surveys over banks at
 /// half, once and twice the layout's speed puts most of the mass on reality's speed, on average
 /// over eight surveys (single surveys scatter: a slow wind's higher concentrations partly
-/// resemble a rising background, so beside the background nuisance, rank's default, one survey
-/// in four puts less than half on it). `cargo test --release wind_speed_posterior --
-/// --nocapture` prints the shares. (The source sits on a candidate: with a coarse candidate grid
-/// a wider plume can make up for a source between candidates, and the speed is no longer told
-/// apart from the position.)
+/// resemble a rising background, so beside the background nuisance, rank's default, three
+/// surveys of eight put less than half on it at half the speed). `cargo test --release
+/// wind_speed_posterior -- --nocapture` prints the shares. (The source sits on a candidate:
+/// with a coarse candidate grid a wider plume can make up for a source between candidates, and
+/// the speed is no longer told apart from the position.)
 #[test]
 fn the_wind_speed_posterior_finds_realitys_speed() {
     use plumenet::plume::PhysicsSolver;
