@@ -552,6 +552,14 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
         ..config.ste
     };
     assert!(!with.papers_rank().clean_air_model_ties);
+    // The clean-air rank floor ties every estimate below the readings' clean-air group, the
+    // background's alone among them.
+    assert!(!config.ste.clean_air_rank_floor);
+    let floor = SteParams {
+        clean_air_rank_floor: true,
+        ..config.ste
+    };
+    assert!(!floor.papers_rank().clean_air_rank_floor);
     let survey = lawnmower(&world.layout, &config.robot, 0.5).unwrap();
     let recirculating = world
         .with_mismatch(Mismatch {
@@ -569,10 +577,15 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
             (x - source[0]).hypot(y - source[1])
         };
         let (tied, untied) = (error(with), error(config.ste));
+        let floored = error(floor);
         eprintln!(
-            "source {source:?}: {tied:.2} m with the model's clean-air ties, {untied:.2} m without"
+            "source {source:?}: {tied:.2} m with the model's clean-air ties, {floored:.2} m with the clean-air rank floor, {untied:.2} m without"
         );
         assert!(tied < 0.75, "source {source:?}: {tied} m off");
+        assert!(
+            floored < 0.75,
+            "source {source:?}: {floored} m off with the floor"
+        );
         assert!(
             untied > 1.5,
             "source {source:?}: {untied} m off without the ties"

@@ -152,6 +152,11 @@ pub struct FeatureArgs {
     /// being compared by their order in time (helps a rising background on surveys).
     #[arg(long)]
     clean_air_model_ties: bool,
+    /// Rank only: every estimate that ranks within the readings' clean-air tie group joins
+    /// that group, so the order of a candidate's faintest values, which the sensor cannot
+    /// see, is not compared.
+    #[arg(long)]
+    clean_air_rank_floor: bool,
     /// Rank only: follow a drifting clean-air baseline, taken in a centred window of this many
     /// seconds (default: one baseline for the whole run).
     #[arg(long)]
@@ -167,7 +172,7 @@ pub struct FeatureArgs {
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks and background nuisance (exactly
     /// invariant under every increasing transform of the readings).
-    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties"])]
+    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor"])]
     paper_rank: bool,
 }
 
@@ -196,6 +201,7 @@ impl FeatureArgs {
         p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
         p.clean_air_model_ties = self.clean_air_model_ties;
+        p.clean_air_rank_floor = self.clean_air_rank_floor;
         if let Some(a) = self.background_rise {
             p.background_rise = a;
         }

@@ -49,6 +49,14 @@
 //!   it a rising background's first minutes, which lie within the readings' clean-air band,
 //!   are compared by an order in time that no reading shows, and on a survey the true source
 //!   with a background can lose to a plume from upwind.
+//! - **Clean-air rank floor** (an option, off by default,
+//!   [`SteParams::clean_air_rank_floor`]): every estimate ranked below `q` joins the group,
+//!   whatever its slot or value, so the order of a candidate's faintest values (which the
+//!   sensor cannot see) is never compared. It includes the model ties. With the background
+//!   nuisance's slots it lets a background slot explain the readings' clean air as a level
+//!   that plume tails below it do not disturb (the rank tolerance discounts plume values
+//!   near the background), which a slow room's wide faint tails need (the README's
+//!   "Sim-to-real" has the figures).
 //! - **Rank tolerance** (on by default): the model's concentrations are trusted only up to a
 //!   factor `r` ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above
 //!   all, the intermittency of the real plume, whose readings scatter by such factors around
@@ -187,6 +195,15 @@ pub struct SteParams {
     /// README's "Sim-to-real" has the figures).
     #[serde(default)]
     pub clean_air_model_ties: bool,
+    /// Rank only, with `clean_air_ties`: every estimate ranked within the readings' clean-air
+    /// tie group (below the group's rank `q`, its share of the readings) joins that group,
+    /// whatever its value: the sensor cannot order the lowest `q` of the readings, so the
+    /// model's lowest `q` of the estimates are not compared by their order either (a faint
+    /// tail of a candidate's plume, above the detection floor but where the readings are
+    /// clean air, is then not charged for its order). Off by default (and for records from
+    /// before this setting).
+    #[serde(default)]
+    pub clean_air_rank_floor: bool,
     /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
     /// clean-air baseline is taken, so that it follows a drifting baseline (sensor drift, gas
     /// accumulating in the room); readings above it count by their excess over it. `None`
@@ -248,6 +265,7 @@ impl SteParams {
             detection_floor_ppm: 1.0,
             clean_air_ties: true,
             clean_air_model_ties: false,
+            clean_air_rank_floor: false,
             clean_air_window_s: None,
             rank_tolerance: RANK_TOLERANCE,
             model_rank_factor: 1.0,
@@ -266,6 +284,7 @@ impl SteParams {
         Self {
             clean_air_ties: false,
             clean_air_model_ties: false,
+            clean_air_rank_floor: false,
             rank_tolerance: 1.0,
             model_rank_factor: 1.0,
             background_rise: 0.0,
@@ -621,6 +640,10 @@ impl Estimator {
         let tied = self.params.feature == Feature::Rank
             && self.params.clean_air_ties
             && self.params.clean_air_model_ties;
+        // The clean-air rank floor: every estimate ranked below that group joins it.
+        let floored = self.params.feature == Feature::Rank
+            && self.params.clean_air_ties
+            && self.params.clean_air_rank_floor;
         let q = m.iter().copied().fold(f32::INFINITY, f32::min);
         let rises: Vec<f64> = match tied {
             true => self.times.iter().map(|&t| rise(t)).collect(),
@@ -639,12 +662,12 @@ impl Estimator {
                 // The slot's background (ppm) at a whole rise.
                 let full = self.backgrounds[slot % levels] * self.mixed_ppm[slot / levels];
                 let joins = tied && full > 0.0;
-                let sum = if within || joins {
+                let sum = if within || joins || floored {
                     let mut sum = 0.0;
                     track.for_each_within(r, r_model, |i, v, w, e| {
                         // The background alone, with a little room for the f32 rounding.
                         let alone = joins && v <= full * rises[i] * (1.0 + 1e-6) + floor_ppm;
-                        let e = if alone { e.max(q) } else { e };
+                        let e = if alone || floored { e.max(q) } else { e };
                         let w = if within { w } else { 0.0 };
                         sum += f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
                     });
