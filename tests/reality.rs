@@ -552,8 +552,8 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
         ..config.ste
     };
     assert!(!with.papers_rank().clean_air_model_ties);
-    // The clean-air rank floor ties every estimate below the readings' clean-air group, the
-    // background's alone among them.
+    // The clean-air rank floor ties every estimate of a background slot below the readings'
+    // clean-air group, the background's alone among them.
     assert!(!config.ste.clean_air_rank_floor);
     let floor = SteParams {
         clean_air_rank_floor: true,
@@ -586,6 +586,19 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
             floored < 0.75,
             "source {source:?}: {floored} m off with the floor"
         );
+        // Without the nuisance's slots the floor leaves the posterior exactly as it is.
+        let plain = |floor: bool| {
+            let ste = SteParams {
+                background_rise: 0.0,
+                clean_air_rank_floor: floor,
+                ..config.ste
+            };
+            replay(world.samplers(), ste, r, &samples)
+                .unwrap()
+                .posterior()
+                .to_vec()
+        };
+        assert_eq!(plain(true), plain(false));
         assert!(
             untied > 1.5,
             "source {source:?}: {untied} m off without the ties"

@@ -152,9 +152,10 @@ pub struct FeatureArgs {
     /// being compared by their order in time (helps a rising background on surveys).
     #[arg(long)]
     clean_air_model_ties: bool,
-    /// Rank only: every estimate that ranks within the readings' clean-air tie group joins
-    /// that group, so the order of a candidate's faintest values, which the sensor cannot
-    /// see, is not compared.
+    /// Rank only, with the background nuisance: in its slots every estimate that ranks within
+    /// the readings' clean-air tie group joins that group, so the order of a candidate's
+    /// faintest values, which the sensor cannot see, is not compared (helps surveys in unseen
+    /// rooms, costs on the planner's paths).
     #[arg(long)]
     clean_air_rank_floor: bool,
     /// Rank only: follow a drifting clean-air baseline, taken in a centred window of this many

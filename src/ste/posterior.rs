@@ -50,13 +50,10 @@
 //!   are compared by an order in time that no reading shows, and on a survey the true source
 //!   with a background can lose to a plume from upwind.
 //! - **Clean-air rank floor** (an option, off by default,
-//!   [`SteParams::clean_air_rank_floor`]): every estimate ranked below `q` joins the group,
-//!   whatever its slot or value, so the order of a candidate's faintest values (which the
-//!   sensor cannot see) is never compared. It includes the model ties. With the background
-//!   nuisance's slots it lets a background slot explain the readings' clean air as a level
-//!   that plume tails below it do not disturb (the rank tolerance discounts plume values
-//!   near the background), which a slow room's wide faint tails need (the README's
-//!   "Sim-to-real" has the figures).
+//!   [`SteParams::clean_air_rank_floor`]): in the background nuisance's slots every estimate
+//!   ranked below `q` joins the group, whatever its value, which includes the model ties.
+//!   It helps lawnmower surveys in unseen rooms and costs in the paper arena, on the planner's
+//!   paths most (the README's "Sim-to-real" has the figures).
 //! - **Rank tolerance** (on by default): the model's concentrations are trusted only up to a
 //!   factor `r` ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above
 //!   all, the intermittency of the real plume, whose readings scatter by such factors around
@@ -195,13 +192,15 @@ pub struct SteParams {
     /// README's "Sim-to-real" has the figures).
     #[serde(default)]
     pub clean_air_model_ties: bool,
-    /// Rank only, with `clean_air_ties`: every estimate ranked within the readings' clean-air
-    /// tie group (below the group's rank `q`, its share of the readings) joins that group,
-    /// whatever its value: the sensor cannot order the lowest `q` of the readings, so the
-    /// model's lowest `q` of the estimates are not compared by their order either (a faint
-    /// tail of a candidate's plume, above the detection floor but where the readings are
-    /// clean air, is then not charged for its order). Off by default (and for records from
-    /// before this setting).
+    /// Rank only, with `clean_air_ties` and the background nuisance: in a background slot,
+    /// every estimate ranked within the readings' clean-air tie group (below the group's rank
+    /// `q`, its share of the readings) joins that group, whatever its value (the model ties'
+    /// estimates of the background alone among them): the sensor cannot order the lowest `q`
+    /// of the readings, so the slot's lowest `q` of the estimates are not compared by their
+    /// order either. The slot without a background is left as it is (flooring it too broke
+    /// the planner's paths). Off by default (and for records from before this setting): it
+    /// helps surveys in unseen rooms and costs in the paper arena (the README's "Sim-to-real"
+    /// has the figures).
     #[serde(default)]
     pub clean_air_rank_floor: bool,
     /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
@@ -640,7 +639,8 @@ impl Estimator {
         let tied = self.params.feature == Feature::Rank
             && self.params.clean_air_ties
             && self.params.clean_air_model_ties;
-        // The clean-air rank floor: every estimate ranked below that group joins it.
+        // The clean-air rank floor: in a background slot, every estimate ranked below that
+        // group joins it.
         let floored = self.params.feature == Feature::Rank
             && self.params.clean_air_ties
             && self.params.clean_air_rank_floor;
@@ -667,7 +667,11 @@ impl Estimator {
                     track.for_each_within(r, r_model, |i, v, w, e| {
                         // The background alone, with a little room for the f32 rounding.
                         let alone = joins && v <= full * rises[i] * (1.0 + 1e-6) + floor_ppm;
-                        let e = if alone || floored { e.max(q) } else { e };
+                        let e = if alone || (floored && full > 0.0) {
+                            e.max(q)
+                        } else {
+                            e
+                        };
                         let w = if within { w } else { 0.0 };
                         sum += f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
                     });
