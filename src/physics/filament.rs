@@ -292,10 +292,10 @@ impl FilamentPlume {
         if self.in_sight(from, to) {
             return Some(to);
         }
-        let n = (step.0.abs().max(step.1.abs()) / (0.5 * self.layout.cell())).ceil();
-        let mut sub = (step.0 / n, step.1 / n);
+        let n = self.half_cells(step);
+        let mut sub = (step.0 / n as f64, step.1 / n as f64);
         let mut at = from;
-        for _ in 0..n as usize {
+        for _ in 0..n {
             (at, sub) = self.mirrored_move(at, sub)?;
         }
         Some(at)
@@ -326,11 +326,17 @@ impl FilamentPlume {
         Some((next, (dx, dy)))
     }
 
+    /// How many pieces of at most half a cell along its longer axis a move takes (so that no
+    /// piece steps over a wall one cell thick).
+    fn half_cells(&self, (dx, dy): (f64, f64)) -> usize {
+        (dx.abs().max(dy.abs()) / (0.5 * self.layout.cell())).ceil() as usize
+    }
+
     /// Whether the segment between two points crosses no obstacle cell, sampled every half cell
     /// or closer along its longer axis (so a wall one cell thick is never stepped over).
     fn in_sight(&self, from: (f64, f64), to: (f64, f64)) -> bool {
         let (dx, dy) = (to.0 - from.0, to.1 - from.1);
-        let n = (dx.abs().max(dy.abs()) / (0.5 * self.layout.cell())).ceil() as usize;
+        let n = self.half_cells((dx, dy));
         (1..n).all(|k| {
             let t = k as f64 / n as f64;
             let (j, i) = self.layout.cell_of(from.0 + t * dx, from.1 + t * dy);

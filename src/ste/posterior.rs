@@ -662,16 +662,13 @@ impl Estimator {
                 // The slot's background (ppm) at a whole rise.
                 let full = self.backgrounds[slot % levels] * self.mixed_ppm[slot / levels];
                 let joins = tied && full > 0.0;
-                let sum = if within || joins || floored {
+                let floors = floored && full > 0.0;
+                let sum = if within || joins || floors {
                     let mut sum = 0.0;
                     track.for_each_within(r, r_model, |i, v, w, e| {
                         // The background alone, with a little room for the f32 rounding.
                         let alone = joins && v <= full * rises[i] * (1.0 + 1e-6) + floor_ppm;
-                        let e = if alone || (floored && full > 0.0) {
-                            e.max(q)
-                        } else {
-                            e
-                        };
+                        let e = if alone || floors { e.max(q) } else { e };
                         let w = if within { w } else { 0.0 };
                         sum += f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
                     });
