@@ -123,6 +123,10 @@ struct TrainArgs {
     /// the transformed target's squared error alone).
     #[arg(long, default_value_t = 0.0, value_parser = parse_weight)]
     rel_l2_weight: f32,
+    /// Mirror each training map across the wind (north-south) with probability 1/2, drawn
+    /// anew every epoch (an exact symmetry of the physics: twice the rooms for free).
+    #[arg(long)]
+    mirror: bool,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -597,6 +601,7 @@ fn train(a: TrainArgs) -> Result<()> {
             EncodingArg::Distance => SourceEncoding::Distance,
         },
         rel_l2_weight: a.rel_l2_weight,
+        mirror: a.mirror,
         ..TrainingConfig::default()
     };
     if let Some(dir) = &a.init_from {

@@ -170,6 +170,15 @@ fn csv_error(path: &Path, e: csv::Error) -> Error {
     }
 }
 
+/// The memory the system can still give a process (`MemAvailable` of `/proc/meminfo`, in
+/// bytes), or `None` where that cannot be read (not Linux).
+pub fn available_memory_bytes() -> Option<u64> {
+    let text = fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 /// Hex SHA-256 of bytes.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::Digest;

@@ -633,6 +633,29 @@ fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
         let e = (g["x"].as_f64().unwrap() - 4.5).hypot(g["y"].as_f64().unwrap() - 2.3);
         assert!((g["error_m"].as_f64().unwrap() - e).abs() < 1e-9, "{guess}");
     }
+    // Thinned: at most that many readings reach the STE; the baselines still see them all.
+    let thinned_path = tmp.path().join("thinned.json");
+    let out = plumenet_ok(&[
+        "replay",
+        "--solver",
+        "--no-cache",
+        "--log",
+        log.to_str().unwrap(),
+        "--source",
+        "4.5,2.3",
+        "--thin-to",
+        "100",
+        "--json",
+        thinned_path.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("thinned to"), "{stdout}");
+    let thinned: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&thinned_path).unwrap()).unwrap();
+    let used = thinned["samples"].as_u64().unwrap();
+    assert!((51..=100).contains(&used), "{used}");
+    assert_eq!(thinned["log_readings"], rep["samples"]);
+    assert_eq!(thinned["baselines"], rep["baselines"]);
 
     let dir = tmp.path().join("suite");
     plumenet_ok(&[
@@ -680,6 +703,8 @@ fn bad_ste_input_fails_cleanly() {
         bad.to_str().unwrap(),
     ]);
     assert_clean_failure(&out, "missing column 'y'");
+    let out = plumenet(&["replay", "--solver", "--thin-to", "0", "--log", "x.csv"]);
+    assert_clean_failure(&out, "--thin-to");
     let out = plumenet(&["localize", "--solver", "--no-cache", "--source", "7,1"]);
     assert_clean_failure(&out, "inside obstacle");
     let out = plumenet(&[

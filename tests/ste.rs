@@ -10,7 +10,7 @@ use plumenet::Error;
 use plumenet::layout::Layout;
 use plumenet::plume::PhysicsSolver;
 use plumenet::ste::posterior::{entropy, prior_support};
-use plumenet::ste::replay::{read_log, replay};
+use plumenet::ste::replay::{read_log, replay, thin};
 use plumenet::ste::robot::{Occupancy, path_length};
 use plumenet::ste::run::PRIOR_BAND_M;
 use plumenet::ste::{EpisodeConfig, RobotParams, Sampling};
@@ -823,7 +823,23 @@ fn replay_of_a_synthetic_log_recovers_its_source() {
             h < allowed.ln() - 1.0,
             "entropy {h} barely below the prior's"
         );
+        // Every 4th reading (a quarter of them) still finds it, in a quarter of the memory.
+        let max = samples.len().div_ceil(4);
+        let thinned = thin(&samples, max).unwrap();
+        assert!(thinned.len() <= max && thinned.len() > max / 2);
+        let every_4th: Vec<Sample> = samples.iter().step_by(4).copied().collect();
+        assert_eq!(thinned, every_4th);
+        let est = replay(world().samplers(), params, 0.07, &thinned).unwrap();
+        let [x, y] = est.estimate();
+        assert!(
+            (x - source[0]).hypot(y - source[1]) <= 0.25 * 2f64.sqrt() + 1e-9,
+            "thinned: source {source:?}, estimate ({x}, {y})"
+        );
+        let bytes = |n| Estimator::memory_bytes(1, allowed as usize, &params, n);
+        assert!(bytes(thinned.len()) * 3 < bytes(samples.len()));
     }
+    assert_eq!(thin(&[], 5).unwrap(), vec![]);
+    assert!(thin(&[], 0).is_err());
 }
 
 #[test]

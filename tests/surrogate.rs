@@ -844,3 +844,107 @@ fn the_relative_l2_loss_term_matches_its_formula() {
         value(&config)
     );
 }
+
+/// `train --mirror` rests on an exact symmetry: a room mirrored across the wind has the
+/// mirrored mean field. A training batch's mirrored sample equals the encoding of the truly
+/// mirrored room (built from mirrored obstacles, its wind and plume solved anew) with the
+/// mirrored source, inputs and target alike; unmirrored samples are left as they are.
+#[test]
+fn a_mirrored_training_sample_is_the_mirrored_room_solved_anew() {
+    use plumenet::surrogate::data::{InputSet, Normalization, RoomPlanes, SourceEncoding};
+    let tmp = tempfile::tempdir().unwrap();
+    let data = rooms_dataset(&tmp.path().join("data"), 3, 7);
+    let device = Default::default();
+    let norm = Normalization::default();
+    let batch = |samples: &[usize], mirror: Option<&[bool]>| {
+        let (x, y, free) = data
+            .batch(
+                samples,
+                mirror,
+                InputSet::Analytic,
+                SourceEncoding::Gaussian,
+                &norm,
+                8,
+                &device,
+            )
+            .unwrap();
+        let v = |t: burn::Tensor<4>| (t.dims(), t.into_data().try_to_vec::<f32>().unwrap());
+        (v(x), v(y), v(free))
+    };
+    let mut checked_asymmetric = false;
+    for s in 0..data.len() {
+        let real = &data.layouts()[data.source_layout[s]];
+        let canonical = plumenet::frame::Frame::of(real)
+            .layout_to_canonical(real)
+            .unwrap();
+        let mut spec = canonical.spec().clone();
+        let height = spec.height_m;
+        for o in &mut spec.obstacles {
+            (o.y_min, o.y_max) = (height - o.y_max, height - o.y_min);
+        }
+        let mirrored = spec.check().unwrap();
+        checked_asymmetric |= mirrored.solid() != canonical.solid();
+        let [sx, sy] = data.source_xy[s];
+        let wind = plumenet::physics::wind::WindField::solve(&mirrored).unwrap();
+        let field = PhysicsSolver.bank(&mirrored, &[[sx, height - sy]]).unwrap();
+        let room = RoomPlanes::new(&mirrored, Some(&wind));
+
+        let ((dims, input), (_, target), (_, free)) = batch(&[s], Some(&[true]));
+        let [_, channels, hp, wp] = dims;
+        let mut expected = vec![0.0f32; channels * hp * wp];
+        room.encode(
+            [sx, height - sy],
+            InputSet::Analytic,
+            SourceEncoding::Gaussian,
+            &norm,
+            (hp, wp),
+            &mut expected,
+        )
+        .unwrap();
+        let worst = input
+            .iter()
+            .zip(&expected)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst <= 1e-4, "sample {s}: inputs differ by {worst}");
+        let (h, w) = room.shape();
+        for j in 0..h {
+            for i in 0..w {
+                let k = j * wp + i;
+                let c = field.fields[[0, j, i]];
+                assert!(
+                    (target[k] - norm.forward(c, real.wind_speed())).abs() <= 1e-3,
+                    "sample {s}, cell ({j}, {i})"
+                );
+                assert_eq!(free[k], 1.0 - room.mask[[j, i]]);
+            }
+        }
+        // Flags of false, or none, leave the sample as it is.
+        assert_eq!(batch(&[s], Some(&[false])), batch(&[s], None));
+        assert_ne!(batch(&[s], Some(&[true])).1, batch(&[s], None).1);
+    }
+    assert!(checked_asymmetric, "every room was its own mirror image");
+}
+
+/// A mirrored run is reproducible (its flags come from the run's seed), is not the plain run,
+/// and records the setting, so a resume with another setting is refused.
+#[test]
+fn mirrored_training_is_seeded_and_recorded() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = rooms_dataset(&tmp.path().join("data"), 3, 8);
+    let mirrored = TrainingConfig {
+        mirror: true,
+        ..tiny_config(2)
+    };
+    let run = |config: &TrainingConfig, name: &str| {
+        train(&data, config, &tmp.path().join(name), &mut |_| ())
+            .unwrap()
+            .history
+    };
+    let a = run(&mirrored, "a");
+    assert_eq!(losses(&a), losses(&run(&mirrored, "b")));
+    assert_ne!(losses(&a), losses(&run(&tiny_config(2), "plain")));
+    let saved = Surrogate::load(&tmp.path().join("a")).unwrap();
+    assert!(saved.saved().training.mirror);
+    let err = train(&data, &tiny_config(3), &tmp.path().join("a"), &mut |_| ()).unwrap_err();
+    assert!(matches!(err, Error::Model(_)), "{err}");
+}

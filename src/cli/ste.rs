@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde_json::json;
 
@@ -18,12 +18,12 @@ use plumenet::ste::compare;
 use plumenet::ste::experiment::{
     Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
 };
-use plumenet::ste::replay::{read_log, replay_in_steps};
+use plumenet::ste::replay::{read_log, replay_in_steps, thin};
 use plumenet::ste::run::{StartRule, derive_seed};
 use plumenet::ste::survey::{fly, lawnmower};
 use plumenet::ste::{
-    Baselines, EpisodeConfig, Feature, Mismatch, MoxParams, PlannerKind, Reality, RobotParams,
-    Sampling, SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
+    Baselines, EpisodeConfig, Estimator, Feature, Mismatch, MoxParams, PlannerKind, Reality,
+    RobotParams, Sampling, SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
 };
 use plumenet::surrogate::Surrogate;
 use plumenet::viewer::RunView;
@@ -547,6 +547,10 @@ pub struct ReplayArgs {
     /// Chunks of readings the viewer's replay takes them in (its iterations).
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
     html_steps: u64,
+    /// Use every k-th reading, k the smallest that leaves at most N (a long log, thinned evenly
+    /// in time so that the replay fits in memory; the baselines still see every reading).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    thin_to: Option<u64>,
 }
 
 pub fn replay_log(a: ReplayArgs) -> Result<()> {
@@ -564,13 +568,34 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     } else {
         1
     };
-    let (est, trace) = replay_in_steps(world.samplers(), params, a.robot_radius, &samples, steps)?;
+    let used = match a.thin_to {
+        Some(n) => thin(&samples, n as usize)?,
+        None => samples.clone(),
+    };
+    let banks = world.samplers().len();
+    let candidates = world.sampler.candidates().len();
+    let need = Estimator::memory_bytes(banks, candidates, &params, used.len());
+    if let Some(free) = io::available_memory_bytes().filter(|&free| need > free) {
+        // The most readings that fit in half the free memory.
+        let fits = (free / 2) / Estimator::memory_bytes(banks, candidates, &params, 1).max(1);
+        bail!(
+            "replaying {} readings over {candidates} candidates and {banks} bank(s) needs about \
+             {:.1} GB, more than the {:.1} GB free; thin the log with --thin-to {fits} or fewer",
+            used.len(),
+            need as f64 / 1e9,
+            free as f64 / 1e9,
+        );
+    }
+    if used.len() < samples.len() {
+        println!("thinned to {} of {} readings", used.len(), samples.len());
+    }
+    let (est, trace) = replay_in_steps(world.samplers(), params, a.robot_radius, &used, steps)?;
     let estimate = est.estimate();
     let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
     let baselines = Baselines::new(&world.layout, &samples, source)?;
     println!(
         "{} readings, {}: estimate ({:.2}, {:.2}){}, entropy {:.2} nats, fit {:.3}",
-        samples.len(),
+        used.len(),
         feature.name(),
         estimate[0],
         estimate[1],
@@ -609,7 +634,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             est.candidates(),
             a.plume.spacing(),
             &params,
-            &samples,
+            &used,
             &trace,
         );
         let title = format!(
@@ -617,7 +642,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             a.log.display(),
             feature.name(),
             model_name,
-            samples.len(),
+            used.len(),
             trace.len()
         );
         RunView {
@@ -631,7 +656,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     if let Some(path) = &a.json {
         let posterior = plumenet::ste::protocol::posterior_json(&est);
         let mut report = json!({
-            "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": samples.len(),
+            "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": used.len(), "log_readings": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
             "baselines": baselines, "backgrounds": est.backgrounds(), "posterior": posterior,
             "wind_scales": world.marginal(est.bank_posterior(), |b| b.wind_scale),
@@ -1042,7 +1067,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     if let Some(dir) = &a.rooms_of {
         let manifest = plumenet::dataset::Manifest::load(dir)?;
         if a.rooms == 0 || a.rooms > manifest.layouts.len() {
-            anyhow::bail!(
+            bail!(
                 "--rooms {} is not between 1 and the {} layouts of {}",
                 a.rooms,
                 manifest.layouts.len(),

@@ -392,6 +392,15 @@ pub fn prior_support(
     Ok(support)
 }
 
+/// The background rises an estimator marginalises, in fully mixed concentrations: none
+/// without the nuisance, else 0, half and the whole of [`SteParams::background_rise`].
+fn background_levels(params: &SteParams) -> Vec<f64> {
+    match params.background_rise {
+        0.0 => vec![0.0],
+        a => vec![0.0, 0.5 * a, a],
+    }
+}
+
 /// The grid Bayesian filter over candidate source cells.
 #[derive(Debug, Clone)]
 pub struct Estimator {
@@ -472,10 +481,7 @@ impl Estimator {
             .collect();
         let posterior = normalise(&log_prior);
         let banks = samplers.len();
-        let backgrounds = match params.background_rise {
-            0.0 => vec![0.0],
-            a => vec![0.0, 0.5 * a, a],
-        };
+        let backgrounds = background_levels(&params);
         let slots = banks * backgrounds.len() * n;
         let track = FeatureTrack::new(params.feature, params.features);
         Ok(Self {
@@ -500,6 +506,20 @@ impl Estimator {
             lag_state: vec![0.0; slots],
             last_time: None,
         })
+    }
+
+    /// About how many bytes an estimator over `banks` banks of `candidates` candidates holds
+    /// after `readings` readings, most of it in one update that takes them all at once (a
+    /// replay): every (bank, background, candidate) slot keeps each reading's estimate, feature
+    /// and rank (12 bytes), and an update gathers its readings' estimates first (4 more).
+    pub fn memory_bytes(
+        banks: usize,
+        candidates: usize,
+        params: &SteParams,
+        readings: usize,
+    ) -> u64 {
+        let slots = banks * background_levels(params).len() * candidates;
+        16 * slots as u64 * readings as u64
     }
 
     /// The background rises marginalised (in fully mixed concentrations: 0, then half and the

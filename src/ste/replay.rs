@@ -72,6 +72,20 @@ pub fn read_log(path: &Path) -> Result<Vec<Sample>> {
     Ok(samples)
 }
 
+/// Every `k`-th reading of `samples`, from the first, with the smallest `k` that leaves at
+/// most `max` of them (all of them when they are no more than `max`): a long log thinned
+/// evenly in time, so that a replay fits in memory ([`Estimator::memory_bytes`]).
+///
+/// # Errors
+/// [`Error::Parameter`] for `max` 0.
+pub fn thin(samples: &[Sample], max: usize) -> Result<Vec<Sample>> {
+    if max == 0 {
+        return Err(Error::Parameter("cannot thin a log to no readings".into()));
+    }
+    let k = samples.len().div_ceil(max).max(1);
+    Ok(samples.iter().step_by(k).copied().collect())
+}
+
 /// The estimator's state after a step of a replay.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReplayStep {

@@ -44,6 +44,11 @@ pub struct TrainingConfig {
     /// target's squared error alone.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub rel_l2_weight: f32,
+    /// Mirror each training sample across the wind (`y -> H - y`) with probability 1/2, drawn
+    /// anew every epoch: an exact symmetry of the physics, so the network sees twice as many
+    /// rooms. False, the default and every model before it, trains on the maps as they are.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub mirror: bool,
     /// Start from the weights of this trained model (same architecture) instead of random ones:
     /// its weights digest, recorded so a resumed run can check it starts from the same model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -116,6 +121,7 @@ impl Default for TrainingConfig {
                 final_fraction: 0.02,
             },
             rel_l2_weight: 0.0,
+            mirror: false,
             init_from: None,
         }
     }

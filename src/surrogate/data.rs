@@ -183,6 +183,26 @@ impl RoomPlanes {
         }
     }
 
+    /// The room mirrored across the wind (`y -> H - y`, canonical frame): the planes flipped
+    /// north to south and the wind's across component negated. The mean field of a mirrored
+    /// room is the mirrored field, so this is an exact symmetry of the data (training's
+    /// `--mirror`).
+    pub fn mirrored(&self) -> Self {
+        let flip = |a: &Array2<f32>| a.slice(ndarray::s![..;-1, ..]).to_owned();
+        Self {
+            mask: flip(&self.mask),
+            sdf: flip(&self.sdf),
+            wind: self
+                .wind
+                .as_ref()
+                .map(|[u, v]| [flip(u), flip(v).mapv(|c| -c)]),
+            cell_m: self.cell_m,
+            speed_mps: self.speed_mps,
+            peclet: self.peclet,
+            diffusivity_m2ps: self.diffusivity_m2ps,
+        }
+    }
+
     /// Grid `(H, W)`.
     pub fn shape(&self) -> (usize, usize) {
         self.mask.dim()
@@ -582,12 +602,16 @@ impl TrainingData {
 
     /// Input, target and weight tensors `[B, C, H, W]` for the given samples, padded to the
     /// largest padded grid among them; the weight is 1 in free cells of the room, 0 elsewhere.
+    /// With `mirror`, the samples whose entry is true are mirrored across the wind
+    /// ([`RoomPlanes::mirrored`], source and target alike).
     ///
     /// # Errors
     /// As [`RoomPlanes::encode`].
+    #[allow(clippy::too_many_arguments)]
     pub fn batch(
         &self,
         samples: &[usize],
+        mirror: Option<&[bool]>,
         inputs: InputSet,
         encoding: SourceEncoding,
         norm: &Normalization,
@@ -605,16 +629,25 @@ impl TrainingData {
         let mut target = vec![0.0f32; b * plane];
         let mut free = vec![0.0f32; b * plane];
         for (n, &s) in samples.iter().enumerate() {
-            let room = &self.rooms[self.source_layout[s]];
+            let mut room = &self.rooms[self.source_layout[s]];
+            let [sx, mut sy] = self.source_xy[s];
+            let mut concentration = self.concentration[s].view();
+            let mirrored;
+            if mirror.is_some_and(|m| m[n]) {
+                sy = room.shape().0 as f64 * room.cell_m - sy;
+                concentration.invert_axis(ndarray::Axis(0));
+                mirrored = room.mirrored();
+                room = &mirrored;
+            }
             room.encode(
-                self.source_xy[s],
+                [sx, sy],
                 inputs,
                 encoding,
                 norm,
                 (h, w),
                 &mut input[n * channels * plane..(n + 1) * channels * plane],
             )?;
-            for (((j, i), &c), &m) in self.concentration[s].indexed_iter().zip(room.mask.iter()) {
+            for (((j, i), &c), &m) in concentration.indexed_iter().zip(room.mask.iter()) {
                 let k = n * plane + j * w + i;
                 target[k] = norm.forward(c, room.speed_mps);
                 free[k] = 1.0 - m;

@@ -10,8 +10,8 @@ use std::path::Path;
 
 use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
-use rand::SeedableRng;
 use rand::seq::SliceRandom;
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
@@ -104,11 +104,13 @@ pub fn loss(config: &TrainingConfig, pred: Tensor<4>, y: Tensor<4>, free: Tensor
 fn batch(
     data: &TrainingData,
     samples: &[usize],
+    mirror: Option<&[bool]>,
     config: &TrainingConfig,
     device: &Device,
 ) -> Result<(Tensor<4>, Tensor<4>, Tensor<4>)> {
     data.batch(
         samples,
+        mirror,
         config.inputs,
         config.encoding,
         &config.normalization,
@@ -128,7 +130,7 @@ fn mean_loss(
     let (mut sum, mut n) = (0.0, 0usize);
     for bucket in data.buckets(samples, config.pad_cells) {
         for chunk in bucket.chunks(config.batch_size.max(1) * 2) {
-            let (x, y, free) = batch(data, chunk, config, device)?;
+            let (x, y, free) = batch(data, chunk, None, config, device)?;
             let loss: f32 = loss(config, model.forward(x), y, free).into_scalar();
             sum += f64::from(loss) * chunk.len() as f64;
             n += chunk.len();
@@ -168,13 +170,14 @@ pub fn evaluate_loss(
 }
 
 /// The batches of one epoch: `samples` shuffled, cut into batches of one padded grid, and the
-/// batches shuffled (all from `rng`).
+/// batches shuffled; with [`TrainingConfig::mirror`], each batch's mirror flags (all from
+/// `rng`, the flags drawn last so that runs without mirroring shuffle as before).
 fn epoch_batches(
     data: &TrainingData,
     samples: &[usize],
     config: &TrainingConfig,
     rng: &mut ChaCha8Rng,
-) -> Vec<Vec<usize>> {
+) -> Vec<(Vec<usize>, Option<Vec<bool>>)> {
     let mut order = samples.to_vec();
     order.shuffle(rng);
     let mut batches: Vec<Vec<usize>> = data
@@ -184,6 +187,14 @@ fn epoch_batches(
         .collect();
     batches.shuffle(rng);
     batches
+        .into_iter()
+        .map(|chunk| {
+            let flags = config
+                .mirror
+                .then(|| chunk.iter().map(|_| rng.random_bool(0.5)).collect());
+            (chunk, flags)
+        })
+        .collect()
 }
 
 /// The weights a fresh run starts from: seeded random ones, or those of the warm-start model.
@@ -283,8 +294,8 @@ pub fn train(
         let started = std::time::Instant::now();
         let batches = epoch_batches(data, &train_idx, config, &mut epoch_rng(epoch));
         let mut sum = 0.0;
-        for (b, chunk) in batches.iter().enumerate() {
-            let (x, y, free) = batch(data, chunk, config, &device)?;
+        for (b, (chunk, flags)) in batches.iter().enumerate() {
+            let (x, y, free) = batch(data, chunk, flags.as_deref(), config, &device)?;
             let loss = loss(config, model.forward(x), y, free);
             let value = f64::from(loss.clone().into_scalar::<f32>());
             let grads = GradientsParams::from_grads(loss.backward(), &model);
