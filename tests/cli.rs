@@ -5,7 +5,7 @@ use std::process::Command;
 use ndarray::{Ix2, Ix3};
 use plumenet::io::read_npy;
 
-use crate::common::{assert_clean_failure, plumenet, plumenet_ok, repo_path};
+use crate::common::{assert_clean_failure, plumenet, plumenet_ok, read_json, repo_path};
 
 const TUNNEL: &str = "data/layouts/wind-tunnel.json";
 
@@ -35,8 +35,7 @@ fn simulate_writes_field_wind_png_and_report() {
     assert_eq!(wind.dim(), (2, 32, 144));
     let png = image::open(tmp.path().join("f.png")).unwrap();
     assert!(png.width() > 144 && png.height() > 32);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("r.json")).unwrap()).unwrap();
+    let report = read_json(tmp.path().join("r.json"));
     assert!((report["outlet_flux"].as_f64().unwrap() - 1.0).abs() < 0.02);
 }
 
@@ -304,8 +303,7 @@ fn bench_net_reports_throughput_and_flop_rate() {
     ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("GFLOP/s"), "{stdout}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let report = read_json(&json);
     for key in [
         "ours_bank_images_per_s",
         "ours_train_images_per_s",
@@ -362,8 +360,7 @@ fn localize_writes_the_run_and_its_pictures() {
         stdout.contains("estimate") && stdout.contains("error"),
         "{stdout}"
     );
-    let run: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let run = read_json(&json_path);
     for key in [
         "estimate",
         "error_m",
@@ -434,8 +431,7 @@ fn localize_writes_the_run_and_its_pictures() {
         ];
         args.extend_from_slice(flags);
         plumenet_ok(&args);
-        let run: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&surrogate_json).unwrap()).unwrap();
+        let run = read_json(&surrogate_json);
         assert_eq!(
             run["config"]["ste"]["model_rank_factor"], factor,
             "{flags:?}"
@@ -463,8 +459,7 @@ fn localize_writes_the_run_and_its_pictures() {
     // The second run reads the cached bank and repeats the first exactly.
     let again = plumenet(&args);
     assert!(String::from_utf8_lossy(&again.stdout).contains("bank from cache"));
-    let run2: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let run2 = read_json(&json_path);
     assert_eq!(run["samples"], run2["samples"]);
     assert_eq!(run["estimate"], run2["estimate"]);
 }
@@ -493,8 +488,7 @@ fn replay_and_experiment_write_their_reports() {
         "--json",
         json_path.to_str().unwrap(),
     ]);
-    let rep: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let rep = read_json(&json_path);
     let post = rep["posterior"].as_array().unwrap();
     assert_eq!(post.len(), 1112);
     let total: f64 = post.iter().map(|p| p["p"].as_f64().unwrap()).sum();
@@ -620,8 +614,7 @@ fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
         "--json",
         json_path.to_str().unwrap(),
     ]);
-    let rep: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let rep = read_json(&json_path);
     assert_eq!(
         rep["samples"].as_u64().unwrap() as usize,
         text.lines().count() - 1
@@ -650,8 +643,7 @@ fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
     ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("thinned to"), "{stdout}");
-    let thinned: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&thinned_path).unwrap()).unwrap();
+    let thinned = read_json(&thinned_path);
     let used = thinned["samples"].as_u64().unwrap();
     assert!((51..=100).contains(&used), "{used}");
     assert_eq!(thinned["log_readings"], rep["samples"]);
@@ -934,8 +926,7 @@ fn bench_serve_loses_no_reading() {
         json.to_str().unwrap(),
     ]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("counted by the server"));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let report = read_json(&json);
     assert_eq!(report["load"]["sent"], 1000);
     assert_eq!(report["load"]["accepted"], 1000);
     assert_eq!(report["load"]["errors"], 0);

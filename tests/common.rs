@@ -50,3 +50,8 @@ pub fn assert_clean_failure(out: &Output, needle: &str) {
     assert!(!stderr.contains("panicked"), "panic: {stderr}");
     assert!(stderr.contains(needle), "expected {needle:?} in {stderr}");
 }
+
+/// The JSON document in a file a command wrote.
+pub fn read_json(path: impl AsRef<std::path::Path>) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use base64::Engine;
 use serde_json::{Value, json};
 
-use crate::common::{assert_clean_failure, plumenet, plumenet_ok};
+use crate::common::{assert_clean_failure, plumenet, plumenet_ok, read_json};
 
 const CHROMIUM: &str = "/usr/bin/chromium";
 const CHROMEDRIVER: &str = "/usr/bin/chromedriver";
@@ -46,7 +46,7 @@ fn localize_with_viewer(dir: &Path) -> (Value, PathBuf) {
         "--html",
         html.to_str().unwrap(),
     ]);
-    let run = serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let run = read_json(&json_path);
     (run, html)
 }
 
