@@ -577,7 +577,8 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let need = Estimator::memory_bytes(banks, candidates, &params, used.len());
     if let Some(free) = io::available_memory_bytes().filter(|&free| need > free) {
         // The most readings that fit in half the free memory.
-        let fits = (free / 2) / Estimator::memory_bytes(banks, candidates, &params, 1).max(1);
+        let per_reading = Estimator::memory_bytes(banks, candidates, &params, 1).max(1);
+        let fits = ((free / 2) / per_reading).max(1);
         bail!(
             "replaying {} readings over {candidates} candidates and {banks} bank(s) needs about \
              {:.1} GB, more than the {:.1} GB free; thin the log with --thin-to {fits} or fewer",
