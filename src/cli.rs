@@ -16,7 +16,7 @@ use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::{FieldPanel, FieldPlot, Panel, save_figure};
-use plumenet::surrogate::config::WarmStart;
+use plumenet::surrogate::config::{Selection, WarmStart};
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
 use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
@@ -127,6 +127,16 @@ struct TrainArgs {
     /// anew every epoch (an exact symmetry of the physics: twice the rooms for free).
     #[arg(long)]
     mirror: bool,
+    /// Which validation score keeps the best epoch and drives early stopping: the loss, or
+    /// the held-out maps' median relative L2 error (the evaluation's measure).
+    #[arg(long, value_enum, default_value_t = SelectArg::Loss)]
+    select_by: SelectArg,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum SelectArg {
+    Loss,
+    RelativeL2,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -602,6 +612,10 @@ fn train(a: TrainArgs) -> Result<()> {
         },
         rel_l2_weight: a.rel_l2_weight,
         mirror: a.mirror,
+        select_by: match a.select_by {
+            SelectArg::Loss => Selection::Loss,
+            SelectArg::RelativeL2 => Selection::RelativeL2,
+        },
         ..TrainingConfig::default()
     };
     if let Some(dir) = &a.init_from {
@@ -630,18 +644,21 @@ fn train(a: TrainArgs) -> Result<()> {
             bar.set_message(format!("loss {:.4}", running.0 / running.1 as f64));
         }
         TrainEvent::Epoch(e) => {
-            let by_size = e
-                .validation_by_size
-                .unwrap_or_default()
-                .map(|v| v.map_or("-".to_string(), |v| format!("{v:.5}")))
-                .join(" / ");
+            let classes = |v: Option<[Option<f64>; 3]>, digits: usize| {
+                v.unwrap_or_default()
+                    .map(|v| v.map_or("-".to_string(), |v| format!("{v:.digits$}")))
+                    .join(" / ")
+            };
             say(
                 &bar,
                 format!(
-                    "epoch {:3}  train {:.5}  validation {:.5} (small / medium / large rooms {by_size})  {:.0} s",
+                    "epoch {:3}  train {:.5}  validation {:.5} (small / medium / large rooms {}), median rel. L2 {:.3} ({})  {:.0} s",
                     e.epoch,
                     e.train,
                     e.validation,
+                    classes(e.validation_by_size, 5),
+                    e.validation_relative_l2.unwrap_or(f64::NAN),
+                    classes(e.validation_relative_l2_by_size, 3),
                     e.seconds.unwrap_or(0.0)
                 ),
             );
@@ -652,9 +669,10 @@ fn train(a: TrainArgs) -> Result<()> {
     bar.finish_and_clear();
     if let Some(best) = state.best {
         println!(
-            "best epoch {} (validation loss {:.5}); model in {}",
+            "best epoch {} (validation loss {:.5}, median rel. L2 {:.3}); model in {}",
             best.epoch,
             best.validation,
+            best.validation_relative_l2.unwrap_or(f64::NAN),
             a.out.display()
         );
     }

@@ -179,8 +179,9 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             } else {
                 &mut burn
             };
+            // Images are forward passes: a mirror-averaging model runs two per candidate.
             side.bank
-                .push(n as f64 / time_bank(&model, &layout, &candidates, imp)?);
+                .push((n * model.views()) as f64 / time_bank(&model, &layout, &candidates, imp)?);
             side.train.push(
                 a.batch as f64
                     / time_training(&model, &layout, &candidates, (a.batch, a.steps), imp)?,
@@ -286,7 +287,7 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         }
     }
     let train_share = 1.0 - defaults.validation_fraction;
-    let bank_s = |side: &Side| n as f64 / median(side.bank.clone());
+    let bank_s = |side: &Side| (n * model.views()) as f64 / median(side.bank.clone());
     let epoch_s = |side: &Side| {
         README_SAMPLES * train_share / median(side.train.clone())
             + README_SAMPLES * (1.0 - train_share) / median(side.bank.clone())

@@ -21,7 +21,7 @@ pub struct TrainingConfig {
     pub weight_decay: f32,
     /// Share of layouts held out for validation.
     pub validation_fraction: f64,
-    /// Stop after this many epochs without a better validation loss.
+    /// Stop after this many epochs without a better validation score ([`Selection`]).
     pub patience: usize,
     /// Seed of the weight initialisation and the shuffling.
     pub seed: u64,
@@ -49,6 +49,10 @@ pub struct TrainingConfig {
     /// rooms. False, the default and every model before it, trains on the maps as they are.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub mirror: bool,
+    /// Which validation score picks the kept epoch and drives early stopping: the loss (the
+    /// default, and every model before it) or the maps' median relative L2 error.
+    #[serde(default, skip_serializing_if = "Selection::is_loss")]
+    pub select_by: Selection,
     /// Start from the weights of this trained model (same architecture) instead of random ones:
     /// its weights digest, recorded so a resumed run can check it starts from the same model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -122,7 +126,34 @@ impl Default for TrainingConfig {
             },
             rel_l2_weight: 0.0,
             mirror: false,
+            select_by: Selection::Loss,
             init_from: None,
+        }
+    }
+}
+
+/// The validation score that picks the kept epoch (lower is better).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Selection {
+    /// The validation loss.
+    #[default]
+    Loss,
+    /// The median relative L2 error of the held-out maps (the evaluation's measure).
+    RelativeL2,
+}
+
+impl Selection {
+    fn is_loss(&self) -> bool {
+        *self == Selection::Loss
+    }
+
+    /// The score of an epoch; an epoch recorded before relative L2 was measured has none
+    /// (infinite), so any epoch that has it is better.
+    pub fn score(&self, epoch: &EpochLoss) -> f64 {
+        match self {
+            Selection::Loss => epoch.validation,
+            Selection::RelativeL2 => epoch.validation_relative_l2.unwrap_or(f64::INFINITY),
         }
     }
 }
@@ -144,6 +175,13 @@ pub struct EpochLoss {
     /// without validation layouts), absent in models from before the any-room change.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validation_by_size: Option<[Option<f64>; 3]>,
+    /// Median relative L2 error of the held-out maps' concentration over free cells (one
+    /// network pass each); absent in models trained before it was measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_relative_l2: Option<f64>,
+    /// The same per room size class.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_relative_l2_by_size: Option<[Option<f64>; 3]>,
     /// Seconds the epoch took (training and validation).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seconds: Option<f64>,
@@ -158,7 +196,7 @@ pub struct TrainState {
     pub dataset_digest: String,
     /// Losses of the finished epochs.
     pub history: Vec<EpochLoss>,
-    /// Best validation loss and its epoch.
+    /// The kept epoch (best validation score, [`TrainingConfig::select_by`]).
     pub best: Option<EpochLoss>,
     /// Whether early stopping ended the run.
     #[serde(default)]

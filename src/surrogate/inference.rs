@@ -104,47 +104,72 @@ impl Surrogate {
 
     /// The network inputs for `sources` in `layout`, chunks of at most [`BANK_CHUNK`] samples of
     /// `[n, channels, H, W]` row-major on the grid [`Surrogate::grid`] (what
-    /// [`Surrogate::predict_many`] feeds the network). Solves the wind first if the inputs need
-    /// it.
+    /// [`Surrogate::predict_many`] feeds the network, for the room as it is). Solves the wind
+    /// first if the inputs need it.
     ///
     /// # Errors
     /// [`Error::Model`] for a layout the model does not cover, [`Error::Source`] for a source
     /// outside free space, [`Error::Solver`] when the wind cannot be solved.
     pub fn inputs(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Vec<Vec<f32>>> {
+        let room = self.room(layout, sources)?;
+        let canonical = canonical_sources(&Frame::of(layout), sources);
+        sources
+            .chunks(BANK_CHUNK)
+            .enumerate()
+            .map(|(k, chunk)| {
+                let first = k * BANK_CHUNK;
+                self.encode(
+                    &room,
+                    &canonical[first..first + chunk.len()],
+                    self.grid(layout),
+                )
+            })
+            .collect()
+    }
+
+    /// The canonical room of `layout` as the network sees it (wind solved if the inputs need
+    /// it), after checking the layout and the sources.
+    fn room(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<RoomPlanes> {
         self.check_layout(layout)?;
         for &[x, y] in sources {
             layout.check_source(x, y)?;
         }
         // The network sees the layout turned so that the wind comes from the west.
-        let frame = Frame::of(layout);
-        let canonical = frame.layout_to_canonical(layout)?;
-        let training = &self.saved.training;
-        let wind = if training.inputs.needs_wind() {
+        let canonical = Frame::of(layout).layout_to_canonical(layout)?;
+        let wind = if self.saved.training.inputs.needs_wind() {
             Some(WindField::solve(&canonical)?)
         } else {
             None
         };
-        let room = RoomPlanes::new(&canonical, wind.as_ref());
-        let [h, w] = self.grid(layout);
+        Ok(RoomPlanes::new(&canonical, wind.as_ref()))
+    }
+
+    /// The inputs of canonical `sources` in `room`, `[n, channels, H, W]` on grid `[H, W]`.
+    fn encode(
+        &self,
+        room: &RoomPlanes,
+        sources: &[[f64; 2]],
+        [h, w]: [usize; 2],
+    ) -> Result<Vec<f32>> {
         let per_sample = self.channels() * h * w;
-        sources
-            .chunks(BANK_CHUNK)
-            .map(|chunk| {
-                let mut input = vec![0.0f32; chunk.len() * per_sample];
-                for (slot, &[x, y]) in input.chunks_mut(per_sample).zip(chunk) {
-                    let (xc, yc) = frame.to_canonical(x, y);
-                    room.encode(
-                        [xc, yc],
-                        training.inputs,
-                        self.saved.encoding,
-                        &self.saved.normalization,
-                        (h, w),
-                        slot,
-                    )?;
-                }
-                Ok(input)
-            })
-            .collect()
+        let mut input = vec![0.0f32; sources.len() * per_sample];
+        for (slot, &source) in input.chunks_mut(per_sample).zip(sources) {
+            room.encode(
+                source,
+                self.saved.training.inputs,
+                self.saved.encoding,
+                &self.saved.normalization,
+                (h, w),
+                slot,
+            )?;
+        }
+        Ok(input)
+    }
+
+    /// How many views of a room a prediction averages: 2 when the model averages the room and
+    /// its mirror image ([`SavedModel::mirror_average`]), else 1.
+    pub fn views(&self) -> usize {
+        if self.saved.mirror_average { 2 } else { 1 }
     }
 
     /// The raw network output (transformed concentration) `[n, 1, H, W]` of `n` encoded inputs
@@ -184,7 +209,9 @@ impl Surrogate {
     }
 
     /// Predicted fields `[N, H, W]` for sources in `layout`, in forward passes of
-    /// [`BANK_CHUNK`] samples.
+    /// [`BANK_CHUNK`] samples. A model with [`SavedModel::mirror_average`] predicts the room and
+    /// its mirror image across the wind (`y -> H - y` in the canonical frame, an exact symmetry
+    /// of the physics) and averages the two concentrations.
     ///
     /// # Errors
     /// As [`Surrogate::inputs`].
@@ -208,22 +235,48 @@ impl Surrogate {
         let solid = layout.solid();
         let norm = self.saved.normalization;
         let speed = layout.wind_speed();
+        let room = self.room(layout, sources)?;
+        let canonical = canonical_sources(&frame, sources);
+        // The mirror image: the room flipped across the wind, each source with it; its output
+        // row `jc` is the room's row `rows - 1 - jc`.
+        let rows = room.shape().0;
+        let mirror = (self.views() == 2).then(|| {
+            let height = rows as f64 * room.cell_m;
+            let flipped: Vec<[f64; 2]> = canonical.iter().map(|&[x, y]| [x, height - y]).collect();
+            (room.mirrored(), flipped)
+        });
+        let weight = 1.0 / self.views() as f32;
         let mut out = Array3::<f32>::zeros((sources.len(), h, w));
-        let chunks = self.inputs(layout, sources)?;
-        for (input, mut fields) in chunks
-            .into_iter()
-            .zip(out.axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK))
+        for (k, mut fields) in out
+            .axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK)
+            .enumerate()
         {
+            let chunk = k * BANK_CHUNK..k * BANK_CHUNK + fields.dim().0;
             // Canonical padded outputs `[n, 1, H', W']`, turned back cell by cell.
-            let values = self.forward_raw_with(input, grid, imp)?;
+            let direct = self.forward_raw_with(
+                self.encode(&room, &canonical[chunk.clone()], grid)?,
+                grid,
+                imp,
+            )?;
+            let mirrored = match &mirror {
+                Some((mroom, msources)) => Some(self.forward_raw_with(
+                    self.encode(mroom, &msources[chunk], grid)?,
+                    grid,
+                    imp,
+                )?),
+                None => None,
+            };
             for ((n, j, i), slot) in fields.indexed_iter_mut() {
+                if solid[[j, i]] {
+                    continue;
+                }
                 let (jc, ic) = frame.cell_to_canonical(j, i);
-                let v = values[(n * grid[0] + jc) * grid[1] + ic];
-                *slot = if solid[[j, i]] {
-                    0.0
-                } else {
-                    norm.inverse(v, speed)
-                };
+                let at = |row: usize| (n * grid[0] + row) * grid[1] + ic;
+                let mut c = norm.inverse(direct[at(jc)], speed);
+                if let Some(values) = &mirrored {
+                    c += norm.inverse(values[at(rows - 1 - jc)], speed);
+                }
+                *slot = weight * c;
             }
         }
         Ok(out)
@@ -237,6 +290,17 @@ impl Surrogate {
         let many = self.predict_many(layout, &[source])?;
         Ok(many.index_axis(ndarray::Axis(0), 0).mapv(f64::from))
     }
+}
+
+/// Canonical coordinates of real `sources`.
+fn canonical_sources(frame: &Frame, sources: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    sources
+        .iter()
+        .map(|&[x, y]| {
+            let (xc, yc) = frame.to_canonical(x, y);
+            [xc, yc]
+        })
+        .collect()
 }
 
 /// The factor within which PlumeNet's concentrations are known when ranked: its relative

@@ -55,6 +55,12 @@ pub struct SavedModel {
     /// SHA-256 of the weight tensors ([`weights_digest`]; models written before it hold the
     /// SHA-256 of `weights.bpk`, which is still accepted).
     pub weights_digest: String,
+    /// Predictions average the room and its mirror image across the wind (an exact symmetry of
+    /// the physics; two forward passes per field; [`super::Surrogate::predict_many`]). True
+    /// for every model trained since; false (one pass) in models written before, unless their
+    /// `config.json` sets it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub mirror_average: bool,
 }
 
 impl SavedModel {
@@ -74,6 +80,7 @@ impl SavedModel {
             history: state.history.clone(),
             best: state.best,
             weights_digest: String::new(),
+            mirror_average: true,
         }
     }
 

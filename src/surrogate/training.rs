@@ -1,8 +1,8 @@
 //! Training PlumeNet: AdamW, a train/validation split by layout, best-checkpoint keeping, early
 //! stopping and resumption after an interruption.
 //!
-//! `out/` receives `weights.bpk` (burnpack) and `config.json` whenever the validation loss
-//! improves (both written atomically), and `out/checkpoint/` the latest epoch's model, optimizer
+//! `out/` receives `weights.bpk` (burnpack) and `config.json` whenever the validation score
+//! ([`super::config::Selection`]: the loss, or the maps' median relative L2 error) improves (both written atomically), and `out/checkpoint/` the latest epoch's model, optimizer
 //! state and progress, from which an interrupted run resumes with identical results. Re-running
 //! with a higher `epochs` continues a finished run.
 
@@ -21,6 +21,7 @@ use super::model::PlumeNet;
 use super::saved::{SavedModel, load_weights, weights_bytes};
 use crate::error::{Error, Result};
 use crate::io;
+use crate::stats::median;
 
 /// What the caller is told while training runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -83,21 +84,42 @@ pub(crate) fn masked_mse(pred: Tensor<4>, target: Tensor<4>, free: Tensor<4>) ->
     (pred - target).powi_scalar(2).mul(free).sum().div(count)
 }
 
+/// Each map's squared relative L2 error of `exp(pred) - 1` against `exp(y) - 1` over free
+/// cells, `[B, 1, 1, 1]`. The target is `y = ln(1 + c f / s)`, so `c` is proportional to
+/// `exp(y) - 1` with a factor that cancels in the ratio.
+fn squared_relative_l2(pred: Tensor<4>, y: Tensor<4>, free: Tensor<4>) -> Tensor<4> {
+    let per_map = |t: Tensor<4>| t.sum_dim(3).sum_dim(2).sum_dim(1);
+    let c = y.exp().sub_scalar(1.0);
+    let diff = pred.exp().sub_scalar(1.0).sub(c.clone());
+    let err = per_map(diff.powi_scalar(2).mul(free.clone()));
+    let norm = per_map(c.powi_scalar(2).mul(free)).add_scalar(1e-12);
+    err.div(norm)
+}
+
 /// The training loss: `masked_mse` of the transformed target, plus `rel_l2_weight` times the
-/// batch's mean squared relative L2 error of the concentration over free cells. The target is
-/// `y = ln(1 + c f / s)`, so `c` is proportional to `exp(y) - 1` with a factor that cancels in
-/// the ratio; predictions are capped at `y = 20` inside the exponential.
+/// batch's mean squared relative L2 error of the concentration over free cells
+/// (predictions capped at `y = 20` inside the exponential).
 pub fn loss(config: &TrainingConfig, pred: Tensor<4>, y: Tensor<4>, free: Tensor<4>) -> Tensor<1> {
     let mse = masked_mse(pred.clone(), y.clone(), free.clone());
     if config.rel_l2_weight == 0.0 {
         return mse;
     }
-    let per_map = |t: Tensor<4>| t.sum_dim(3).sum_dim(2).sum_dim(1);
-    let c = y.exp().sub_scalar(1.0);
-    let diff = pred.clamp_max(20.0).exp().sub_scalar(1.0).sub(c.clone());
-    let err = per_map(diff.powi_scalar(2).mul(free.clone()));
-    let norm = per_map(c.powi_scalar(2).mul(free)).add_scalar(1e-12);
-    mse.add(err.div(norm).mean().mul_scalar(config.rel_l2_weight))
+    let rel = squared_relative_l2(pred.clamp_max(20.0), y, free);
+    mse.add(rel.mean().mul_scalar(config.rel_l2_weight))
+}
+
+/// Each map's relative L2 error of the predicted concentration over free cells, the
+/// evaluation's measure ([`super::eval`]): the network's output is mapped back as in
+/// inference (negative outputs are zero concentration).
+///
+/// # Errors
+/// [`Error::Model`] when the values cannot be read.
+pub fn relative_l2_per_map(pred: Tensor<4>, y: Tensor<4>, free: Tensor<4>) -> Result<Vec<f64>> {
+    let squared = squared_relative_l2(pred.clamp(0.0, 20.0), y, free)
+        .into_data()
+        .try_to_vec::<f32>()
+        .map_err(|e| Error::Model(format!("cannot read the relative L2 errors: {e:?}")))?;
+    Ok(squared.into_iter().map(|v| f64::from(v).sqrt()).collect())
 }
 
 /// [`TrainingData::batch`] with the run's inputs, encoding, normalisation and padding.
@@ -119,54 +141,80 @@ fn batch(
     )
 }
 
-/// Mean loss of `model` over `samples` (no gradients), in batches of one padded grid.
-fn mean_loss(
+/// Summed loss of `model` over `samples` (no gradients), in batches of one padded grid, and
+/// each sample's relative L2 error.
+fn scores(
     model: &PlumeNet,
     data: &TrainingData,
     samples: &[usize],
     config: &TrainingConfig,
     device: &Device,
-) -> Result<(f64, usize)> {
-    let (mut sum, mut n) = (0.0, 0usize);
+) -> Result<(f64, Vec<f64>)> {
+    let (mut sum, mut relative) = (0.0, Vec::with_capacity(samples.len()));
     for bucket in data.buckets(samples, config.pad_cells) {
         for chunk in bucket.chunks(config.batch_size.max(1) * 2) {
             let (x, y, free) = batch(data, chunk, None, config, device)?;
-            let loss: f32 = loss(config, model.forward(x), y, free).into_scalar();
+            let pred = model.forward(x);
+            relative.extend(relative_l2_per_map(pred.clone(), y.clone(), free.clone())?);
+            let loss: f32 = loss(config, pred, y, free).into_scalar();
             sum += f64::from(loss) * chunk.len() as f64;
-            n += chunk.len();
         }
     }
-    Ok((sum, n))
+    Ok((sum, relative))
 }
 
-/// Validation loss of `model` over `samples` (no gradients): overall and per room size class
-/// ([`super::data::SIZE_CLASSES`]).
+/// Validation scores of a model on held-out samples: the mean loss and the median relative L2
+/// error of the maps (the goal's measure), overall and per room size class
+/// ([`super::data::SIZE_CLASSES`]; `None` for a class without samples).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Validation {
+    /// Mean loss (NaN without samples).
+    pub loss: f64,
+    /// Mean loss per size class.
+    pub loss_by_size: [Option<f64>; 3],
+    /// Median relative L2 error of the maps (NaN without samples).
+    pub relative_l2: f64,
+    /// Median relative L2 error per size class.
+    pub relative_l2_by_size: [Option<f64>; 3],
+}
+
+/// Validation scores of `model` over `samples` (no gradients).
 ///
 /// # Errors
 /// As [`TrainingData::batch`].
-pub fn evaluate_loss(
+pub fn validate(
     model: &PlumeNet,
     data: &TrainingData,
     samples: &[usize],
     config: &TrainingConfig,
     device: &Device,
-) -> Result<(f64, [Option<f64>; 3])> {
-    let mut by_size = [None; 3];
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (class, slot) in by_size.iter_mut().enumerate() {
+) -> Result<Validation> {
+    let mut out = Validation {
+        loss: f64::NAN,
+        loss_by_size: [None; 3],
+        relative_l2: f64::NAN,
+        relative_l2_by_size: [None; 3],
+    };
+    let (mut sum, mut all) = (0.0, Vec::new());
+    for class in 0..out.loss_by_size.len() {
         let members: Vec<usize> = samples
             .iter()
             .copied()
             .filter(|&s| size_class(&data.layouts()[data.source_layout[s]]) == class)
             .collect();
-        let (class_sum, count) = mean_loss(model, data, &members, config, device)?;
-        if count > 0 {
-            *slot = Some(class_sum / count as f64);
+        let (class_sum, relative) = scores(model, data, &members, config, device)?;
+        if !members.is_empty() {
+            out.loss_by_size[class] = Some(class_sum / members.len() as f64);
+            out.relative_l2_by_size[class] = Some(median(&relative));
         }
         sum += class_sum;
-        n += count;
+        all.extend(relative);
     }
-    Ok((if n == 0 { f64::NAN } else { sum / n as f64 }, by_size))
+    if !all.is_empty() {
+        out.loss = sum / all.len() as f64;
+        out.relative_l2 = median(&all);
+    }
+    Ok(out)
 }
 
 /// The batches of one epoch: `samples` shuffled, cut into batches of one padded grid, and the
@@ -307,18 +355,20 @@ pub fn train(
             progress(TrainEvent::Batch(value));
         }
         let valid = model.valid();
-        let (validation, by_size) = evaluate_loss(&valid, data, &val_idx, config, &valid_device)?;
+        let scores = validate(&valid, data, &val_idx, config, &valid_device)?;
         let record = EpochLoss {
             epoch,
             train: sum / train_idx.len() as f64,
-            validation,
-            validation_by_size: Some(by_size),
+            validation: scores.loss,
+            validation_by_size: Some(scores.loss_by_size),
+            validation_relative_l2: Some(scores.relative_l2),
+            validation_relative_l2_by_size: Some(scores.relative_l2_by_size),
             seconds: Some(started.elapsed().as_secs_f64()),
         };
         state.history.push(record);
-        let improved = state
-            .best
-            .is_none_or(|b| validation < b.validation || val_idx.is_empty());
+        let improved = state.best.is_none_or(|b| {
+            config.select_by.score(&record) < config.select_by.score(&b) || val_idx.is_empty()
+        });
         if improved {
             state.best = Some(record);
             SavedModel::new(config, data, &state).write(out, &valid)?;
