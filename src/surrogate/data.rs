@@ -183,6 +183,11 @@ impl RoomPlanes {
         }
     }
 
+    /// A canonical point of the room at its place in the mirrored room ([`RoomPlanes::mirrored`]).
+    pub fn mirrored_point(&self, [x, y]: [f64; 2]) -> [f64; 2] {
+        [x, self.shape().0 as f64 * self.cell_m - y]
+    }
+
     /// The room mirrored across the wind (`y -> H - y`, canonical frame): the planes flipped
     /// north to south and the wind's across component negated. The mean field of a mirrored
     /// room is the mirrored field, so this is an exact symmetry of the data (training's
@@ -630,17 +635,17 @@ impl TrainingData {
         let mut free = vec![0.0f32; b * plane];
         for (n, &s) in samples.iter().enumerate() {
             let mut room = &self.rooms[self.source_layout[s]];
-            let [sx, mut sy] = self.source_xy[s];
+            let mut source = self.source_xy[s];
             let mut concentration = self.concentration[s].view();
             let mirrored;
             if mirror.is_some_and(|m| m[n]) {
-                sy = room.shape().0 as f64 * room.cell_m - sy;
+                source = room.mirrored_point(source);
                 concentration.invert_axis(ndarray::Axis(0));
                 mirrored = room.mirrored();
                 room = &mirrored;
             }
             room.encode(
-                [sx, sy],
+                source,
                 inputs,
                 encoding,
                 norm,

@@ -112,18 +112,10 @@ impl Surrogate {
     /// outside free space, [`Error::Solver`] when the wind cannot be solved.
     pub fn inputs(&self, layout: &Layout, sources: &[[f64; 2]]) -> Result<Vec<Vec<f32>>> {
         let room = self.room(layout, sources)?;
-        let canonical = canonical_sources(&Frame::of(layout), sources);
-        sources
+        let grid = self.grid(layout);
+        canonical_sources(&Frame::of(layout), sources)
             .chunks(BANK_CHUNK)
-            .enumerate()
-            .map(|(k, chunk)| {
-                let first = k * BANK_CHUNK;
-                self.encode(
-                    &room,
-                    &canonical[first..first + chunk.len()],
-                    self.grid(layout),
-                )
-            })
+            .map(|chunk| self.encode(&room, chunk, grid))
             .collect()
     }
 
@@ -241,8 +233,8 @@ impl Surrogate {
         // row `jc` is the room's row `rows - 1 - jc`.
         let rows = room.shape().0;
         let mirror = (self.views() == 2).then(|| {
-            let height = rows as f64 * room.cell_m;
-            let flipped: Vec<[f64; 2]> = canonical.iter().map(|&[x, y]| [x, height - y]).collect();
+            let flipped: Vec<[f64; 2]> =
+                canonical.iter().map(|&p| room.mirrored_point(p)).collect();
             (room.mirrored(), flipped)
         });
         let weight = 1.0 / self.views() as f32;

@@ -2,9 +2,10 @@
 //! stopping and resumption after an interruption.
 //!
 //! `out/` receives `weights.bpk` (burnpack) and `config.json` whenever the validation score
-//! ([`super::config::Selection`]: the loss, or the maps' median relative L2 error) improves (both written atomically), and `out/checkpoint/` the latest epoch's model, optimizer
-//! state and progress, from which an interrupted run resumes with identical results. Re-running
-//! with a higher `epochs` continues a finished run.
+//! ([`super::config::Selection`]: the loss, or the maps' median relative L2 error) improves
+//! (both written atomically), and `out/checkpoint/` the latest epoch's model, optimizer state
+//! and progress, from which an interrupted run resumes with identical results. Re-running with
+//! a higher `epochs` continues a finished run.
 
 use std::path::Path;
 
