@@ -728,6 +728,10 @@ fn bad_ste_input_fails_cleanly() {
             &["--reality-meander-deg", "120"][..],
             "between 0 and 90 degrees",
         ),
+        (
+            &["--reality-meander-walled"][..],
+            "--reality-meander-walled needs a wander",
+        ),
         (&["--spacing", "40"][..], "does not fit the arena"),
     ] {
         let mut args = vec!["survey", "--source", "3,2", "--out", log.to_str().unwrap()];

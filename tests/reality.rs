@@ -736,3 +736,78 @@ fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
     assert_eq!(ep.wind_scales.len(), 1);
     assert!((ep.wind_scales[0][1] - 1.0).abs() < 1e-12);
 }
+
+/// The walled wander (`--reality-meander-walled`) turns only what the walls let through: in an
+/// empty corridor that is nothing between the side walls, so 3 m downwind of the source its
+/// time average stays the steady plume's, while the whole field's wander piles gas up against
+/// a side wall (the mean at the walls several times that in the middle).
+#[test]
+fn a_walled_wander_leaves_a_corridors_plume_in_place() {
+    use plumenet::plume::{PhysicsSolver, PlumeModel};
+    let l = empty_tunnel();
+    let source = [3.0, 2.0];
+    let bank = PhysicsSolver.bank(&l, &[source]).unwrap();
+    let w = WindField::solve(&l).unwrap();
+    let x = 6.0;
+    let (_, i) = l.cell_of(x, 0.0);
+    let ys: Vec<f64> = (0..l.ny()).map(|j| l.cell_centre(j, i).1).collect();
+    let steady: Vec<f64> = (0..ys.len())
+        .map(|j| f64::from(bank.fields[[0, j, i]]))
+        .collect();
+    let mut averages = Vec::new();
+    for walled in [false, true] {
+        let m = Mismatch {
+            meander_deg: 30.0,
+            meander_walled: walled,
+            ..Mismatch::NONE
+        };
+        assert_eq!(
+            m.to_string(),
+            if walled {
+                "meander 30° walled"
+            } else {
+                "meander 30°"
+            }
+        );
+        let mut plume = Reality::new(&l, &w, m)
+            .unwrap()
+            .plume(source, 0.1, 7)
+            .unwrap();
+        plume.advance(60.0);
+        let steps = 8000;
+        let mut mean = vec![0.0; ys.len()];
+        for _ in 0..steps {
+            plume.step();
+            for (m, &y) in mean.iter_mut().zip(&ys) {
+                *m += plume.concentration_at(x, y) / f64::from(steps);
+            }
+        }
+        let num: f64 = mean.iter().zip(&steady).map(|(a, b)| (a - b).powi(2)).sum();
+        let distance = (num / steady.iter().map(|b| b * b).sum::<f64>()).sqrt();
+        let (edge, middle) = ((mean[0] + mean[ys.len() - 1]) / 2.0, mean[ys.len() / 2]);
+        eprintln!(
+            "walled {walled}: relative L2 from the steady plume {distance:.2}, walls / middle {:.2}",
+            edge / middle
+        );
+        averages.push((distance, edge / middle));
+    }
+    let [(turned, piled), (walled, level)] = [averages[0], averages[1]];
+    assert!(
+        walled < 0.35,
+        "the walled wander's average is {walled} off the steady plume"
+    );
+    assert!(
+        turned > 2.0 * walled,
+        "the whole field's wander: {turned} against {walled}"
+    );
+    assert!(
+        piled > 2.0 && level < 1.0,
+        "walls / middle: turned {piled}, walled {level}"
+    );
+    let bad = Mismatch {
+        meander_walled: true,
+        ..Mismatch::NONE
+    };
+    let err = bad.check().unwrap_err().to_string();
+    assert!(err.contains("--reality-meander-deg"), "{err}");
+}

@@ -66,3 +66,52 @@ fn default_tolerance_is_close_to_the_fully_converged_flow() {
             .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
     assert!(diff < 1e-4 * 0.75, "max velocity difference {diff} m/s");
 }
+
+#[test]
+fn a_turned_wind_straightens_between_side_walls() {
+    for (name, l) in [("empty", empty_tunnel()), ("paper arena", wind_tunnel())] {
+        let w = WindField::solve(&l).unwrap();
+        let c = w.crosswind(&l).unwrap();
+        let (ny, nx) = l.shape();
+        let dx = l.cell();
+        // Divergence-free in every free cell, no flow through the walls or the obstacles.
+        for j in 0..ny {
+            for i in 0..nx {
+                if l.is_solid(j, i) {
+                    let faces = [c.u[[j, i]], c.u[[j, i + 1]], c.v[[j, i]], c.v[[j + 1, i]]];
+                    assert_eq!(faces, [0.0; 4], "{name}: flow into solid cell ({j}, {i})");
+                    continue;
+                }
+                let div = c.u[[j, i + 1]] - c.u[[j, i]] + c.v[[j + 1, i]] - c.v[[j, i]];
+                assert!(div.abs() < 1e-9, "{name}: divergence {div} at ({j}, {i})");
+            }
+        }
+        assert!(
+            c.v.row(0)
+                .iter()
+                .chain(c.v.row(ny).iter())
+                .all(|&v| v == 0.0)
+        );
+        assert!(c.u.column(0).iter().all(|&u| u == 0.0));
+        // By column: the mean |v| of the crosswind against the wind speed.
+        let profile: Vec<f64> = (0..nx)
+            .map(|i| (1..ny).map(|j| c.v[[j, i]].abs()).sum::<f64>() / (ny - 1) as f64 / 0.75)
+            .collect();
+        let at = |x: f64| profile[((x / dx) as usize).min(nx - 1)];
+        println!(
+            "{name}: crosswind |v| / U at x = 0.5, 1, 2, 4, 9, 14, 16, 17, 17.5 m: {:.3} {:.3} {:.3} {:.3} {:.3} {:.3} {:.3} {:.3} {:.3}",
+            at(0.5),
+            at(1.0),
+            at(2.0),
+            at(4.0),
+            at(9.0),
+            at(14.0),
+            at(16.0),
+            at(17.0),
+            at(17.5)
+        );
+        if name == "empty" {
+            assert!(at(9.0) < 1e-3, "{name}: mid-tunnel crosswind {}", at(9.0));
+        }
+    }
+}

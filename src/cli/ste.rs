@@ -328,6 +328,10 @@ pub struct RealityArgs {
     /// deviation (degrees, at most 90) and a 20 s correlation time.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     reality_meander_deg: f64,
+    /// The wander turns only the flow the room's walls let through (the turned wind projected
+    /// onto flows that pass no wall or obstacle), not the whole field, walls included.
+    #[arg(long)]
+    reality_meander_walled: bool,
     /// Recirculated gas: a uniform background in free space of this many times the fully mixed
     /// concentration q / (U H), rising with a 60 s time constant.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
@@ -341,6 +345,7 @@ impl RealityArgs {
             wind_scale: self.reality_wind_scale,
             diffusivity_scale: self.reality_diffusivity_scale,
             meander_deg: self.reality_meander_deg,
+            meander_walled: self.reality_meander_walled,
             background: self.reality_background,
         };
         m.check()?;
@@ -982,7 +987,8 @@ pub struct ExperimentArgs {
     #[arg(long, default_value_t = 0.5)]
     survey_spacing: f64,
     /// Run the mismatch suite: reality as the model, each knob alone at a strong setting (wind
-    /// x0.5, diffusivity x3, 30° meander, background 1), and all together.
+    /// x0.5, diffusivity x3, 30° meander, background 1), and all together
+    /// (`--reality-meander-walled` makes its wander the walled one).
     #[arg(long, conflicts_with_all = ["reality_wind_scale", "reality_diffusivity_scale", "reality_meander_deg", "reality_background"])]
     mismatch: bool,
     #[command(flatten)]
@@ -1045,7 +1051,15 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         models.push(true);
     }
     let realities = if a.mismatch {
+        // `--reality-meander-walled` turns the suite's wander into the walled one.
+        let walled = a.reality.reality_meander_walled;
         Mismatch::suite()
+            .into_iter()
+            .map(|m| Mismatch {
+                meander_walled: walled && m.meander_deg > 0.0,
+                ..m
+            })
+            .collect()
     } else {
         vec![a.reality.mismatch()?]
     };

@@ -21,7 +21,8 @@
 //! Two departures from the mean field are available for sim-to-real studies, both off by
 //! default: the wind direction may wander (an Ornstein-Uhlenbeck angle, with standard deviation
 //! `meander_deg` and correlation time `meander_time_s`, turns the velocity that advects every
-//! filament), and a uniform background of recirculated gas may build up in free space, rising
+//! filament: the whole field, walls included, or with `meander_walled` only what the walls let
+//! through, [`WindField::crosswind`]), and a uniform background of recirculated gas may build up in free space, rising
 //! as `background * q / (U H) * (1 - exp(-t / background_time_s))` where `q / (U H)` is the fully
 //! mixed concentration (release rate over inlet speed times arena width across the wind).
 //!
@@ -73,6 +74,11 @@ pub struct FilamentConfig {
     pub meander_deg: f64,
     /// Correlation time of the wander (s).
     pub meander_time_s: f64,
+    /// The wander turns only what the room's walls let through: the wind turned by `a` is
+    /// `cos a * wind + sin a * crosswind` ([`WindField::crosswind`]), which never blows
+    /// through a wall or an obstacle. Otherwise (the default) the whole field is rotated,
+    /// walls included, and filaments pushed into a wall pile up against it.
+    pub meander_walled: bool,
     /// Final level of the recirculated background, in units of the fully mixed concentration
     /// `q / (U H)` (0 = none).
     pub background: f64,
@@ -91,6 +97,7 @@ impl Default for FilamentConfig {
             dt_s: 0.1,
             meander_deg: 0.0,
             meander_time_s: 20.0,
+            meander_walled: false,
             background: 0.0,
             background_time_s: 60.0,
         }
@@ -120,6 +127,8 @@ pub struct FilamentPlume {
     pending: f64,
     /// The wind direction's current deviation (rad).
     meander: f64,
+    /// The canonical crosswind of a walled wander.
+    crosswind: Option<WindField>,
     rng: ChaCha8Rng,
 }
 
@@ -159,6 +168,12 @@ impl FilamentPlume {
             )));
         }
         let frame = Frame::of(layout);
+        let canonical = frame.layout_to_canonical(layout)?;
+        let wind = frame.wind_to_canonical(wind);
+        let crosswind = match config.meander_walled && config.meander_deg > 0.0 {
+            true => Some(wind.crosswind(&canonical)?),
+            false => None,
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         // The wander starts in its stationary distribution; no draw when it is off, so a
         // steady plume's random stream is the same as before the option existed.
@@ -170,14 +185,15 @@ impl FilamentPlume {
         };
         Ok(Self {
             frame,
-            layout: frame.layout_to_canonical(layout)?,
-            wind: frame.wind_to_canonical(wind),
+            layout: canonical,
+            wind,
             source: frame.to_canonical(source.0, source.1),
             config,
             filaments: Vec::new(),
             time: 0.0,
             pending: 0.0,
             meander,
+            crosswind,
             rng,
         })
     }
@@ -225,9 +241,16 @@ impl FilamentPlume {
     pub fn step(&mut self) {
         let dt = self.config.dt_s;
         let (cos, sin) = self.turn_wind();
+        let crosswind = self.crosswind.as_ref();
         let velocity = |wind: &WindField, x: f64, y: f64| {
             let (u, v) = wind.velocity_at(x, y);
-            (u * cos - v * sin, u * sin + v * cos)
+            match crosswind {
+                Some(c) => {
+                    let (uc, vc) = c.velocity_at(x, y);
+                    (u * cos + uc * sin, v * cos + vc * sin)
+                }
+                None => (u * cos - v * sin, u * sin + v * cos),
+            }
         };
         self.pending += self.config.release_rate_hz * dt;
         while self.pending >= 1.0 {

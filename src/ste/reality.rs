@@ -31,6 +31,11 @@ pub struct Mismatch {
     pub diffusivity_scale: f64,
     /// Standard deviation of the wind direction's wander (degrees, 20 s correlation time).
     pub meander_deg: f64,
+    /// The wander turns only the flow the room's walls let through
+    /// ([`crate::physics::wind::WindField::crosswind`]), not the whole field (records from
+    /// before this setting read back as `false`, the whole field).
+    #[serde(default)]
+    pub meander_walled: bool,
     /// Recirculated background, in units of the fully mixed concentration `q / (U H)`, rising
     /// with a 60 s time constant after the release starts.
     pub background: f64,
@@ -48,6 +53,7 @@ impl Mismatch {
         wind_scale: 1.0,
         diffusivity_scale: 1.0,
         meander_deg: 0.0,
+        meander_walled: false,
         background: 0.0,
     };
 
@@ -87,6 +93,7 @@ impl Mismatch {
                 wind_scale: w.wind_scale,
                 diffusivity_scale: d.diffusivity_scale,
                 meander_deg: m.meander_deg,
+                meander_walled: m.meander_walled,
                 background: b.background,
             },
         ]
@@ -118,6 +125,9 @@ impl Mismatch {
                 self.meander_deg
             ));
         }
+        if self.meander_walled && self.meander_deg == 0.0 {
+            return bad("--reality-meander-walled needs a wander (--reality-meander-deg)".into());
+        }
         if !(self.background.is_finite() && self.background >= 0.0) {
             return bad(format!(
                 "--reality-background must be zero or positive, got {}",
@@ -139,7 +149,8 @@ impl fmt::Display for Mismatch {
             parts.push(format!("diffusivity x{}", self.diffusivity_scale));
         }
         if self.meander_deg != 0.0 {
-            parts.push(format!("meander {}°", self.meander_deg));
+            let walled = if self.meander_walled { " walled" } else { "" };
+            parts.push(format!("meander {}°{walled}", self.meander_deg));
         }
         if self.background != 0.0 {
             parts.push(format!("background {}", self.background));
@@ -210,6 +221,7 @@ impl Reality {
         let config = FilamentConfig {
             dt_s,
             meander_deg: self.mismatch.meander_deg,
+            meander_walled: self.mismatch.meander_walled,
             background: self.mismatch.background,
             ..FilamentConfig::default()
         };
