@@ -114,4 +114,20 @@ fn a_turned_wind_straightens_between_side_walls() {
             assert!(at(9.0) < 1e-3, "{name}: mid-tunnel crosswind {}", at(9.0));
         }
     }
+    // Wind from the east: the crosswind is the west wind's turned half a circle.
+    let west = empty_tunnel();
+    let east = plumenet::layout::Layout::from_json(
+        r#"{"width_m":18,"height_m":4,"cell_m":0.125,"wind":{"speed_mps":0.75,"from":"east"}}"#,
+    )
+    .unwrap();
+    let cw = WindField::solve(&west).unwrap().crosswind(&west).unwrap();
+    let ce = WindField::solve(&east).unwrap().crosswind(&east).unwrap();
+    for (x, y) in [(17.0, 1.0), (16.0, 3.1), (14.5, 2.2)] {
+        let (uw, vw) = cw.velocity_at(x, y);
+        let (ue, ve) = ce.velocity_at(18.0 - x, 4.0 - y);
+        assert!(
+            (ue + uw).abs() < 1e-9 && (ve + vw).abs() < 1e-9,
+            "at ({x}, {y})"
+        );
+    }
 }

@@ -22,9 +22,10 @@
 //! default: the wind direction may wander (an Ornstein-Uhlenbeck angle, with standard deviation
 //! `meander_deg` and correlation time `meander_time_s`, turns the velocity that advects every
 //! filament: the whole field, walls included, or with `meander_walled` only what the walls let
-//! through, [`WindField::crosswind`]), and a uniform background of recirculated gas may build up in free space, rising
-//! as `background * q / (U H) * (1 - exp(-t / background_time_s))` where `q / (U H)` is the fully
-//! mixed concentration (release rate over inlet speed times arena width across the wind).
+//! through, [`WindField::crosswind`]), and a uniform background of recirculated gas may build
+//! up in free space, rising as `background * q / (U H) * (1 - exp(-t / background_time_s))`
+//! where `q / (U H)` is the fully mixed concentration (release rate over inlet speed times
+//! arena width across the wind).
 //!
 //! Side walls and obstacle faces reflect filaments (and the side walls reflect their kernels by
 //! images, so no mass leaks through a wall); filaments leave through the inlet (c = 0 there) and

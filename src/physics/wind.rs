@@ -433,9 +433,9 @@ impl WindField {
     /// room lets through: its projection onto divergence-free fields with no flow through the
     /// walls, the obstacles or the inlet (the outlet stays open). A wind turned by an angle
     /// `a` inside the room is then `cos a * self + sin a * crosswind`: divergence-free, with no
-    /// flow through a wall or an obstacle, whatever `a`. Between side walls a long way from
-    /// the inlet and the outlet the crosswind vanishes (air cannot cross a corridor whose walls
-    /// it cannot pass), so a turned inflow straightens within about a room's width.
+    /// flow through a wall or an obstacle, whatever `a`. Between side walls the crosswind
+    /// vanishes (air cannot cross a corridor whose walls it cannot pass) except within a few
+    /// room widths of the open outlet, where the flow may turn.
     ///
     /// # Errors
     /// [`Error::Solver`] when the pressure matrix is singular; the layout's errors when it
