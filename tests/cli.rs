@@ -649,37 +649,49 @@ fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
     assert_eq!(thinned["log_readings"], rep["samples"]);
     assert_eq!(thinned["baselines"], rep["baselines"]);
 
-    let dir = tmp.path().join("suite");
-    plumenet_ok(&[
-        "experiment",
-        "--solver",
-        "--no-cache",
-        "--mismatch",
-        "--paths",
-        "lawnmower",
-        "--survey-spacing",
-        "2",
-        "--runs",
-        "1",
-        "--features",
-        "rank",
-        "--sensors",
-        "sensor-ii",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
-    for reality in [
-        "| none |",
-        "| wind x0.5 |",
-        "| diffusivity x3 |",
-        "| meander 30° |",
-        "| background 1 |",
-        "| wind x0.5, diffusivity x3, meander 30°, background 1 |",
-    ] {
-        assert!(summary.contains(reality), "{reality} missing in {summary}");
+    // The suite, and the suite with the walled wander in place of the issue's.
+    for walled in [false, true] {
+        let dir = tmp.path().join(format!("suite-{walled}"));
+        let mut args = vec![
+            "experiment",
+            "--solver",
+            "--no-cache",
+            "--mismatch",
+            "--paths",
+            "lawnmower",
+            "--survey-spacing",
+            "2",
+            "--runs",
+            "1",
+            "--features",
+            "rank",
+            "--sensors",
+            "sensor-ii",
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        if walled {
+            args.push("--reality-meander-walled");
+        }
+        plumenet_ok(&args);
+        let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+        let meander = if walled {
+            "meander 30° walled"
+        } else {
+            "meander 30°"
+        };
+        for reality in [
+            "| none |".to_string(),
+            "| wind x0.5 |".to_string(),
+            "| diffusivity x3 |".to_string(),
+            format!("| {meander} |"),
+            "| background 1 |".to_string(),
+            format!("| wind x0.5, diffusivity x3, {meander}, background 1 |"),
+        ] {
+            assert!(summary.contains(&reality), "{reality} missing in {summary}");
+        }
+        assert_eq!(summary.matches("| survey |").count(), 6);
     }
-    assert_eq!(summary.matches("| survey |").count(), 6);
 }
 
 #[test]
