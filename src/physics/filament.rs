@@ -148,6 +148,23 @@ impl FilamentPlume {
         config: FilamentConfig,
         seed: u64,
     ) -> Result<Self> {
+        Self::with_crosswind(layout, wind, None, source, config, seed)
+    }
+
+    /// As [`FilamentPlume::new`], with the layout's [`WindField::crosswind`] of `wind` when the
+    /// caller already has it (a walled wander computes it otherwise; it is not used unless
+    /// the wander is walled), so that many plumes of one room share one projection.
+    ///
+    /// # Errors
+    /// As [`FilamentPlume::new`].
+    pub fn with_crosswind(
+        layout: &Layout,
+        wind: &WindField,
+        crosswind: Option<&WindField>,
+        source: (f64, f64),
+        config: FilamentConfig,
+        seed: u64,
+    ) -> Result<Self> {
         layout.check_source(source.0, source.1)?;
         let positive = [
             config.source_rate,
@@ -171,9 +188,10 @@ impl FilamentPlume {
         let frame = Frame::of(layout);
         let canonical = frame.layout_to_canonical(layout)?;
         let wind = frame.wind_to_canonical(wind);
-        let crosswind = match config.meander_walled && config.meander_deg > 0.0 {
-            true => Some(wind.crosswind(&canonical)?),
-            false => None,
+        let crosswind = match (config.meander_walled && config.meander_deg > 0.0, crosswind) {
+            (false, _) => None,
+            (true, Some(c)) => Some(frame.wind_to_canonical(c)),
+            (true, None) => Some(wind.crosswind(&canonical)?),
         };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         // The wander starts in its stationary distribution; no draw when it is off, so a

@@ -169,6 +169,8 @@ impl fmt::Display for Mismatch {
 pub struct Reality {
     layout: Layout,
     wind: WindField,
+    /// The wind's crosswind, for a walled wander (computed once for all its plumes).
+    crosswind: Option<WindField>,
     mismatch: Mismatch,
 }
 
@@ -180,25 +182,28 @@ impl Reality {
     /// The mismatch's [`Mismatch::check`] errors, and the wind solver's.
     pub fn new(layout: &Layout, wind: &WindField, mismatch: Mismatch) -> Result<Self> {
         mismatch.check()?;
-        if mismatch.wind_scale == 1.0 && mismatch.diffusivity_scale == 1.0 {
-            return Ok(Self {
-                layout: layout.clone(),
-                wind: wind.clone(),
-                mismatch,
-            });
-        }
-        let mut spec = layout.spec().clone();
-        spec.wind.speed_mps *= mismatch.wind_scale;
-        spec.diffusivity_m2ps = Some(layout.diffusivity() * mismatch.diffusivity_scale);
-        let real = spec.check()?;
-        let wind = if mismatch.wind_scale == 1.0 {
-            wind.clone()
+        let (layout, wind) = if mismatch.wind_scale == 1.0 && mismatch.diffusivity_scale == 1.0 {
+            (layout.clone(), wind.clone())
         } else {
-            WindField::solve(&real)?
+            let mut spec = layout.spec().clone();
+            spec.wind.speed_mps *= mismatch.wind_scale;
+            spec.diffusivity_m2ps = Some(layout.diffusivity() * mismatch.diffusivity_scale);
+            let real = spec.check()?;
+            let wind = if mismatch.wind_scale == 1.0 {
+                wind.clone()
+            } else {
+                WindField::solve(&real)?
+            };
+            (real, wind)
+        };
+        let crosswind = match mismatch.meander_walled {
+            true => Some(wind.crosswind(&layout)?),
+            false => None,
         };
         Ok(Self {
-            layout: real,
+            layout,
             wind,
+            crosswind,
             mismatch,
         })
     }
@@ -225,9 +230,10 @@ impl Reality {
             background: self.mismatch.background,
             ..FilamentConfig::default()
         };
-        FilamentPlume::new(
+        FilamentPlume::with_crosswind(
             &self.layout,
             &self.wind,
+            self.crosswind.as_ref(),
             (source[0], source[1]),
             config,
             seed,
