@@ -56,16 +56,8 @@ impl PlumeBank {
     /// fit the layout's grid.
     pub fn spread_over_directions(&self, layout: &Layout, sigma_deg: f64) -> Result<Self> {
         Self::check_spread(sigma_deg)?;
-        let (n, ny, nx) = self.fields.dim();
-        if (ny, nx) != layout.shape() || n != self.candidates.len() {
-            return Err(Error::Parameter(format!(
-                "bank of shape {:?} with {} candidates does not fit the layout grid {:?}",
-                self.fields.dim(),
-                self.candidates.len(),
-                layout.shape()
-            )));
-        }
         if sigma_deg == 0.0 {
+            self.check_grid(layout)?;
             return Ok(self.clone());
         }
         let turns: Vec<[f64; 3]> = SPREAD_NODES
@@ -75,13 +67,58 @@ impl PlumeBank {
                 [cos, sin, (-0.5 * u * u).exp()]
             })
             .collect();
+        self.averaged_over_turns(layout, &turns)
+    }
+
+    /// The bank under a wind turned by `angle_deg` (counter-clockwise): each candidate's field
+    /// turned about the candidate by that angle, read at the nearest cell and folded back into
+    /// the arena at its walls, as in [`PlumeBank::spread_over_directions`]. A free cell whose
+    /// turned copy lands in an obstacle is zero (that gas is blocked there); obstacle cells
+    /// stay zero, and an angle of 0 is the bank itself.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for an angle that is not within 90 degrees either way, or a bank
+    /// that does not fit the layout's grid.
+    pub fn turned(&self, layout: &Layout, angle_deg: f64) -> Result<Self> {
+        if angle_deg.is_nan() || angle_deg.abs() > MAX_SPREAD_DEG {
+            return Err(Error::Parameter(format!(
+                "a wind turn must be within {MAX_SPREAD_DEG} degrees either way, got {angle_deg}"
+            )));
+        }
+        if angle_deg == 0.0 {
+            self.check_grid(layout)?;
+            return Ok(self.clone());
+        }
+        // A cell reads the field where the turn's inverse takes it.
+        let (sin, cos) = (-angle_deg).to_radians().sin_cos();
+        self.averaged_over_turns(layout, &[[cos, sin, 1.0]])
+    }
+
+    /// Checks that the bank fits `layout`'s grid.
+    fn check_grid(&self, layout: &Layout) -> Result<()> {
+        let (n, ny, nx) = self.fields.dim();
+        if (ny, nx) != layout.shape() || n != self.candidates.len() {
+            return Err(Error::Parameter(format!(
+                "bank of shape {:?} with {} candidates does not fit the layout grid {:?}",
+                self.fields.dim(),
+                self.candidates.len(),
+                layout.shape()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Every field averaged over its copies turned about its candidate by `turns`
+    /// (`[cos, sin, weight]`, see [`spread_one`]).
+    fn averaged_over_turns(&self, layout: &Layout, turns: &[[f64; 3]]) -> Result<Self> {
+        self.check_grid(layout)?;
         let mut fields = Array3::zeros(self.fields.dim());
         fields
             .axis_iter_mut(Axis(0))
             .into_par_iter()
             .zip(self.fields.axis_iter(Axis(0)).into_par_iter())
             .zip(self.candidates.par_iter())
-            .for_each(|((out, field), &source)| spread_one(layout, &turns, source, field, out));
+            .for_each(|((out, field), &source)| spread_one(layout, turns, source, field, out));
         Ok(Self {
             candidates: self.candidates.clone(),
             fields,
@@ -89,7 +126,8 @@ impl PlumeBank {
     }
 }
 
-/// One field of [`PlumeBank::spread_over_directions`]: `turns` are `[cos, sin, weight]`.
+/// One field of [`PlumeBank::spread_over_directions`] or [`PlumeBank::turned`]: `turns` are
+/// `[cos, sin, weight]`; a free cell none of whose turned copies is free stays zero.
 fn spread_one(
     layout: &Layout,
     turns: &[[f64; 3]],
@@ -119,8 +157,9 @@ fn spread_one(
                 weights += weight;
             }
         }
-        // The unturned copy is the cell itself, which is free: weights > 0.
-        *value = (sum / weights) as f32;
+        if weights > 0.0 {
+            *value = (sum / weights) as f32;
+        }
     }
 }
 

@@ -781,6 +781,16 @@ fn bad_ste_input_fails_cleanly() {
         ("--lag-exponent", "0", "lag's exponent must lie in (0, 1]"),
         ("--lag-exponent", "1.5", "lag's exponent must lie in (0, 1]"),
         ("--detection-floor", "-1", "detection floor"),
+        (
+            "--wind-wander",
+            "70",
+            "wander must be between 0 and 60 degrees",
+        ),
+        (
+            "--wind-wander",
+            "-5",
+            "wander must be between 0 and 60 degrees",
+        ),
     ] {
         let args = [
             "localize",

@@ -561,6 +561,140 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
     }
 }
 
+/// The wander's marginal by brute force: with the wind possibly wandering
+/// ([`SteParams::wander_deg`]), each candidate's likelihood is
+/// `1/2 L_steady + 1/2 prod_s sum_t w_t L_(s,t)` over 20 s segments `s` and turns
+/// `t = 0, ±15, ±30, ±45` degrees (Gaussian weights `w_t`, s.d. 30), the turned banks made here
+/// from [`plumenet::plume::PlumeBank::turned`], the per-reading terms those of the paper's
+/// formula (features over all readings); the steady wind's posterior is its share. For value
+/// and the paper's rank, readings over 50 s (three segments), in two updates. Wanders beyond
+/// 60 degrees, negative or NaN are refused.
+#[test]
+fn the_wander_marginal_matches_its_formula_by_brute_force() {
+    let w = world();
+    let mut samples = synthetic_samples(11, 60);
+    for (i, s) in samples.iter_mut().enumerate() {
+        s.t = 50.0 * i as f64 / 60.0;
+    }
+    let no_lag = |p: SteParams| SteParams {
+        sensor_lag_s: None,
+        wander_deg: 30.0,
+        ..p
+    };
+    let angles = [0.0, -45.0, -30.0, -15.0, 15.0, 30.0, 45.0];
+    let turned: Vec<_> = angles
+        .iter()
+        .map(|&a| {
+            let bank = w.sampler.bank().turned(&w.layout, a).unwrap();
+            plumenet::ste::sampler::FieldSampler::new(&w.layout, &bank).unwrap()
+        })
+        .collect();
+    let log_w: Vec<f64> = angles
+        .iter()
+        .map(|a| -0.5 * (a / 30.0f64).powi(2))
+        .collect();
+    let lse = |v: &[f64]| {
+        let top = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        top + v.iter().map(|x| (x - top).exp()).sum::<f64>().ln()
+    };
+    let z = lse(&log_w);
+    let sup = support();
+    for params in [
+        no_lag(SteParams::for_feature(Feature::Value)),
+        no_lag(SteParams::for_feature(Feature::Rank).papers_rank()),
+    ] {
+        let mut est = Estimator::new(Arc::clone(&w.sampler), &sup, params).unwrap();
+        est.update(&samples[..25]).unwrap();
+        est.update(&samples[25..]).unwrap();
+        let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
+        let features = |v: &[f64]| -> Vec<f64> {
+            match params.feature {
+                Feature::Rank => edf_brute_force(v).iter().map(|&x| f64::from(x)).collect(),
+                _ => v.to_vec(),
+            }
+        };
+        let m = features(&values);
+        let n = samples.len() as f64;
+        let var = params.sigmas.model.powi(2) + params.sigmas.measurement.powi(2);
+        let segment: Vec<usize> = samples.iter().map(|s| (s.t / 20.0) as usize).collect();
+        // Per turn, per candidate: the log-likelihood of each segment.
+        let parts: Vec<Vec<[f64; 3]>> = turned
+            .iter()
+            .map(|sampler| {
+                let rows: Vec<Vec<f32>> = samples
+                    .iter()
+                    .map(|s| {
+                        let mut row = vec![0.0f32; sampler.len()];
+                        sampler.gather(s.x, s.y, params.ppm_per_unit as f32, &mut row);
+                        row
+                    })
+                    .collect();
+                (0..sampler.len())
+                    .map(|k| {
+                        let c: Vec<f64> = rows
+                            .iter()
+                            .map(|r| f64::from(r[k]))
+                            .map(|c| {
+                                if c < params.detection_floor_ppm {
+                                    0.0
+                                } else {
+                                    c
+                                }
+                            })
+                            .collect();
+                        let e = features(&c);
+                        let mut part = [0.0; 3];
+                        for i in 0..samples.len() {
+                            part[segment[i]] += -0.5 * n / (n + 1.0) * (e[i] - m[i]).powi(2) / var;
+                        }
+                        part
+                    })
+                    .collect()
+            })
+            .collect();
+        let (mut log_lik, mut steady) = (Vec::new(), Vec::new());
+        for k in 0..w.sampler.len() {
+            let plain: f64 = parts[0][k].iter().sum();
+            let wandering: f64 = (0..3)
+                .map(|s| {
+                    let terms: Vec<f64> = (0..angles.len())
+                        .map(|t| log_w[t] - z + parts[t][k][s])
+                        .collect();
+                    lse(&terms)
+                })
+                .sum();
+            let both = lse(&[0.5f64.ln() + plain, 0.5f64.ln() + wandering]);
+            log_lik.push(if sup[k] { both } else { f64::NEG_INFINITY });
+            steady.push((0.5f64.ln() + plain - both).exp());
+        }
+        let top = log_lik.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let total: f64 = log_lik.iter().map(|l| (l - top).exp()).sum();
+        let mut steady_mass = 0.0;
+        for (k, &p) in est.posterior().iter().enumerate() {
+            let q = (log_lik[k] - top).exp() / total;
+            steady_mass += q * steady[k];
+            assert!(
+                (p - q).abs() < 1e-6,
+                "{:?} candidate {k}: {p} vs {q}",
+                params.feature
+            );
+        }
+        let ours = est.steady_posterior().unwrap();
+        assert!(
+            (ours - steady_mass).abs() < 1e-6,
+            "steady wind {ours} vs {steady_mass}"
+        );
+    }
+    for bad in [-1.0, 61.0, f64::NAN] {
+        let params = SteParams {
+            wander_deg: bad,
+            ..SteParams::for_feature(Feature::Rank)
+        };
+        let err = Estimator::new(Arc::clone(&w.sampler), &sup, params).unwrap_err();
+        assert!(err.to_string().contains("wander"), "{bad}: {err}");
+    }
+}
+
 #[test]
 fn bad_samples_are_refused_and_change_nothing() {
     let mut est = estimate(Feature::Rank, &synthetic_samples(1, 20));

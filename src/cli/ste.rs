@@ -170,10 +170,15 @@ pub struct FeatureArgs {
     /// The time constant (s) of that background's rise, the room's air-exchange time.
     #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
     background_time: f64,
+    /// Weigh a wind whose direction wanders during the run against a steady one: the prior
+    /// standard deviation (degrees, at most 60) of its turn, fixed within each 20 s of
+    /// readings (seven turned banks per bank; 0, the default, takes the wind as steady).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    wind_wander: f64,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks and background nuisance (exactly
     /// invariant under every increasing transform of the readings).
-    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor"])]
+    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
     paper_rank: bool,
 }
 
@@ -207,6 +212,7 @@ impl FeatureArgs {
             p.background_rise = a;
         }
         p.background_time_s = self.background_time;
+        p.wander_deg = self.wind_wander;
         if self.paper_rank {
             p = p.papers_rank();
         }
@@ -667,6 +673,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             "baselines": baselines, "backgrounds": est.backgrounds(), "posterior": posterior,
             "wind_scales": world.marginal(est.bank_posterior(), |b| b.wind_scale),
             "wind_spreads": world.marginal(est.bank_posterior(), |b| b.spread_deg),
+            "steady_wind": est.steady_posterior(),
         });
         if let (Some(s), Some(e)) = (source, error_m) {
             report["source"] = json!(s);
@@ -1223,6 +1230,10 @@ pub struct BenchSteArgs {
     /// without it, side by side (0: not timed).
     #[arg(long, default_value_t = 0.0)]
     background_rise: f64,
+    /// Also time rank weighing a wandering wind of this standard deviation (degrees; seven
+    /// turned banks) against rank over one bank, side by side (0: not timed).
+    #[arg(long, default_value_t = 0.0)]
+    wind_wander: f64,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -1303,6 +1314,13 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             ..bare
         };
         nuisances.push(("background rises", world.clone(), with, 3));
+    }
+    if a.wind_wander > 0.0 {
+        let with = SteParams {
+            wander_deg: a.wind_wander,
+            ..bare
+        };
+        nuisances.push(("wind turns", world.clone(), with, with.wander_turns().len()));
     }
     let time = |w: &World, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
     let mut nuisance = Vec::new();

@@ -231,6 +231,16 @@ pub struct SteParams {
     /// The background's time constant (s), the room's air-exchange time.
     #[serde(default = "default_background_time_s")]
     pub background_time_s: f64,
+    /// The wind's direction as a hidden state that may wander during the run: the prior
+    /// standard deviation (degrees) of its turn. Two hypotheses, equally likely a priori
+    /// (`WANDER_STEADY`): the wind is steady (the bank as it is, the paper's form), or it
+    /// wanders, its direction fixed within each `WANDER_SEGMENT_S` of readings and unknown
+    /// among turns of 0, ±0.5, ±1 and ±1.5 standard deviations (`WANDER_NODES`, Gaussian
+    /// prior weights; [`crate::plume::PlumeBank::turned`] banks), marginalised per segment and the segments
+    /// multiplied. 0 (the default, and what records from before this setting read back as)
+    /// takes the wind as steady. Each turn costs about one bank's update.
+    #[serde(default)]
+    pub wander_deg: f64,
 }
 
 /// The lag in the concentration itself: what records from before
@@ -273,6 +283,16 @@ impl SteParams {
                 _ => 0.0,
             },
             background_time_s: default_background_time_s(),
+            wander_deg: 0.0,
+        }
+    }
+
+    /// The wind turns (degrees) the estimator weighs: `[0]` with a steady wind, else
+    /// [`SteParams::wander_deg`] times each of `WANDER_NODES`, 0 first.
+    pub fn wander_turns(&self) -> Vec<f64> {
+        match self.wander_deg {
+            0.0 => vec![0.0],
+            s => WANDER_NODES.iter().map(|u| u * s).collect(),
         }
     }
 
@@ -287,6 +307,7 @@ impl SteParams {
             rank_tolerance: 1.0,
             model_rank_factor: 1.0,
             background_rise: 0.0,
+            wander_deg: 0.0,
             ..self
         }
     }
@@ -357,6 +378,12 @@ impl SteParams {
                 self.background_time_s
             )));
         }
+        if !(self.wander_deg.is_finite() && (0.0..=MAX_WANDER_DEG).contains(&self.wander_deg)) {
+            return Err(Error::Parameter(format!(
+                "the wind's wander must be between 0 and {MAX_WANDER_DEG} degrees, got {}",
+                self.wander_deg
+            )));
+        }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
             return Err(Error::Parameter(format!(
                 "ppm per unit must be positive, got {}",
@@ -406,8 +433,15 @@ fn background_levels(params: &SteParams) -> Vec<f64> {
 pub struct Estimator {
     params: SteParams,
     /// The banks: the model's at the layout's wind speed first, then at the other nuisance
-    /// values (see [`Estimator::with_banks`]).
+    /// values (see [`Estimator::with_banks`]), each followed by its turned copies when the
+    /// wind may wander (`turns` per bank, the unturned first).
     samplers: Vec<Arc<FieldSampler>>,
+    /// Samplers per bank: the wind turns weighed ([`SteParams::wander_turns`]).
+    turns: usize,
+    /// The log prior weight of each turn under the wander hypothesis (normalised).
+    turn_log_prior: Vec<f64>,
+    /// The posterior probability of a steady wind, when the wind may wander.
+    steady_posterior: Option<f64>,
     /// Posterior of each bank (its nuisance value), summed over candidates and backgrounds.
     bank_posterior: Vec<f64>,
     /// The background rises marginalised per bank, in fully mixed concentrations, 0 first
@@ -481,8 +515,17 @@ impl Estimator {
             .collect();
         let posterior = normalise(&log_prior);
         let banks = samplers.len();
+        let angles = params.wander_turns();
+        let samplers = samplers
+            .iter()
+            .flat_map(|s| angles.iter().map(|&a| s.turned(a)))
+            .collect::<Result<Vec<_>>>()?;
+        let weights: Vec<f64> = angles
+            .iter()
+            .map(|a| -0.5 * (a / params.wander_deg.max(f64::MIN_POSITIVE)).powi(2))
+            .collect();
         let backgrounds = background_levels(&params);
-        let slots = banks * backgrounds.len() * n;
+        let slots = samplers.len() * backgrounds.len() * n;
         let track = FeatureTrack::new(params.feature, params.features);
         Ok(Self {
             estimated: vec![track; slots],
@@ -497,6 +540,9 @@ impl Estimator {
                 .map(|s| s.layout().fully_mixed(1.0) * params.ppm_per_unit)
                 .collect(),
             samplers,
+            turns: angles.len(),
+            turn_log_prior: log_normalise(&weights),
+            steady_posterior: None,
             log_prior,
             readings: Vec::new(),
             positions: Vec::new(),
@@ -510,15 +556,17 @@ impl Estimator {
 
     /// About how many bytes an estimator over `banks` banks of `candidates` candidates holds
     /// after `readings` readings, most of it in one update that takes them all at once (a
-    /// replay): every (bank, background, candidate) slot keeps each reading's estimate, feature
-    /// and rank (12 bytes), and an update gathers its readings' estimates first (4 more).
+    /// replay): every (bank, wind turn, background, candidate) slot keeps each reading's
+    /// estimate, feature and rank (12 bytes), and an update gathers its readings' estimates
+    /// first (4 more).
     pub fn memory_bytes(
         banks: usize,
         candidates: usize,
         params: &SteParams,
         readings: usize,
     ) -> u64 {
-        let slots = banks * background_levels(params).len() * candidates;
+        let turns = params.wander_turns().len();
+        let slots = banks * turns * background_levels(params).len() * candidates;
         16 * slots as u64 * readings as u64
     }
 
@@ -535,9 +583,16 @@ impl Estimator {
         &self.params
     }
 
-    /// The bank the planner predicts with: the most probable one.
+    /// The bank the planner predicts with: the most probable one, unturned.
     pub fn sampler(&self) -> &FieldSampler {
-        &self.samplers[argmax(&self.bank_posterior)]
+        &self.samplers[argmax(&self.bank_posterior) * self.turns]
+    }
+
+    /// The posterior probability that the wind is steady rather than wandering (see
+    /// [`SteParams::wander_deg`]); `None` when the estimator takes it as steady, or before the
+    /// first reading.
+    pub fn steady_posterior(&self) -> Option<f64> {
+        self.steady_posterior
     }
 
     /// The posterior of each bank (summed over candidates), in the order given.
@@ -671,7 +726,17 @@ impl Estimator {
         };
         let levels = self.backgrounds.len();
         let p = samples.len();
-        let log_lik: Vec<f64> = self
+        // Each reading's wander segment, when the wind may wander.
+        let segment: Vec<usize> = match self.turns {
+            1 => Vec::new(),
+            _ => self
+                .times
+                .iter()
+                .map(|t| ((t - self.times[0]) / WANDER_SEGMENT_S).floor() as usize)
+                .collect(),
+        };
+        let segments = segment.iter().max().map_or(0, |s| s + 1);
+        let slot_lik: Vec<(f64, Vec<f64>)> = self
             .estimated
             .par_iter_mut()
             .enumerate()
@@ -683,6 +748,8 @@ impl Estimator {
                 let full = self.backgrounds[slot % levels] * self.mixed_ppm[slot / levels];
                 let joins = tied && full > 0.0;
                 let floors = floored && full > 0.0;
+                // The log-likelihood of each wander segment, when the wind may wander.
+                let mut parts = vec![0.0; segments];
                 let sum = if within || joins || floors {
                     let mut sum = 0.0;
                     track.for_each_within(r, r_model, |i, v, w, e| {
@@ -690,20 +757,28 @@ impl Estimator {
                         let alone = joins && v <= full * rises[i] * (1.0 + 1e-6) + floor_ppm;
                         let e = if alone || floors { e.max(q) } else { e };
                         let w = if within { w } else { 0.0 };
-                        sum += f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
+                        let d = f64::from(e - m[i]).powi(2) / (variance + f64::from(w * w));
+                        sum += d;
+                        if let Some(&s) = segment.get(i) {
+                            parts[s] += factor * d;
+                        }
                     });
                     sum
                 } else {
                     let e = track.features();
+                    for (i, (&e, &m)) in e.iter().zip(m).enumerate().take(segment.len()) {
+                        parts[segment[i]] += factor * f64::from(e - m).powi(2) / variance;
+                    }
                     e.iter()
                         .zip(m)
                         .map(|(&e, &m)| f64::from(e - m).powi(2))
                         .sum::<f64>()
                         / variance
                 };
-                factor * sum
+                (factor * sum, parts)
             })
             .collect();
+        let log_lik = self.wander_marginal(&slot_lik, positions);
         let log_post: Vec<f64> = log_lik
             .chunks(positions)
             .flat_map(|bank| self.log_prior.iter().zip(bank).map(|(a, b)| a + b))
@@ -717,10 +792,50 @@ impl Estimator {
         let levels = self.backgrounds.len();
         let slot_mass: Vec<f64> = joint.chunks(positions).map(|b| b.iter().sum()).collect();
         self.bank_posterior = slot_mass.chunks(levels).map(|b| b.iter().sum()).collect();
+        if self.turns > 1 {
+            let steady = log_lik.iter().zip(&joint).enumerate().map(|(c, (l, p))| {
+                let (bank, rest) = (c / (levels * positions), c % (levels * positions));
+                let unturned = slot_lik[bank * self.turns * levels * positions + rest].0;
+                p * (WANDER_STEADY.ln() + unturned - l).exp()
+            });
+            self.steady_posterior = Some(steady.sum());
+        }
         self.background_posterior = (0..levels)
             .map(|l| slot_mass.iter().skip(l).step_by(levels).sum())
             .collect();
         Ok(())
+    }
+
+    /// The log-likelihood of every (bank, background, candidate) from its samplers' `slot_lik`
+    /// (whole-run log-likelihood, per-segment log-likelihoods), marginalised over the wind's
+    /// wander (see [`SteParams::wander_deg`]): `p0 L_steady + (1 - p0) prod_s sum_t w_t L_(s,t)`
+    /// in logs, `p0` the steady wind's prior, `w_t` the turns' and `L_(s,t)` segment `s`'s
+    /// likelihood under turn `t`. With a steady wind, the slots' own log-likelihoods.
+    fn wander_marginal(&self, slot_lik: &[(f64, Vec<f64>)], positions: usize) -> Vec<f64> {
+        if self.turns == 1 {
+            return slot_lik.iter().map(|l| l.0).collect();
+        }
+        let levels = self.backgrounds.len();
+        let per_turn = levels * positions;
+        let combined = self.samplers.len() / self.turns * per_turn;
+        (0..combined)
+            .into_par_iter()
+            .map(|c| {
+                let (bank, rest) = (c / per_turn, c % per_turn);
+                let slot = |t: usize| &slot_lik[(bank * self.turns + t) * per_turn + rest];
+                let segments = slot(0).1.len();
+                let wandering: f64 = (0..segments)
+                    .map(|s| {
+                        let terms = (0..self.turns).map(|t| self.turn_log_prior[t] + slot(t).1[s]);
+                        log_sum_exp(terms)
+                    })
+                    .sum();
+                log_sum_exp([
+                    WANDER_STEADY.ln() + slot(0).0,
+                    (1.0 - WANDER_STEADY).ln() + wandering,
+                ])
+            })
+            .collect()
     }
 
     /// Passes every candidate's estimated series through the sensor's first-order dynamics
@@ -807,6 +922,23 @@ const RANK_TOLERANCE: f64 = 3.0;
 /// "Sim-to-real").
 const BACKGROUND_RISE: f64 = 0.5;
 
+/// The wander hypothesis's turns of the wind, in prior standard deviations (see
+/// [`SteParams::wander_deg`]), the steady direction first: a Gaussian truncated at 1.5 of them.
+const WANDER_NODES: [f64; 7] = [0.0, -1.5, -1.0, -0.5, 0.5, 1.0, 1.5];
+
+/// The largest wander's standard deviation (degrees): its widest turn, 1.5 of them, stays
+/// within 90 degrees, beyond which the wind would blow back to the inlet.
+pub const MAX_WANDER_DEG: f64 = 60.0;
+
+/// The length (s) of the wander's segments, within each of which its direction is taken as
+/// fixed: the correlation time of the wander the issue describes. Measured on 50 wandering
+/// runs: 10 s and 60 s segments did worse (README "Sim-to-real").
+const WANDER_SEGMENT_S: f64 = 20.0;
+
+/// The prior probability that the wind is steady rather than wandering: halves, so that a
+/// steady reality keeps the steady bank's posterior (README "Sim-to-real").
+const WANDER_STEADY: f64 = 0.5;
+
 /// Noise levels above the clean-air baseline below which readings tie.
 const CLEAN_AIR_NOISES: f64 = 3.0;
 
@@ -862,6 +994,22 @@ pub fn drifting_clean_air_ties(values: &mut [f64], times: &[f64], window_s: f64)
             *v - baseline
         };
     }
+}
+
+/// Shifts log weights so that their exponentials sum to 1.
+fn log_normalise(log_w: &[f64]) -> Vec<f64> {
+    let z = log_sum_exp(log_w.iter().copied());
+    log_w.iter().map(|w| w - z).collect()
+}
+
+/// `ln sum_i exp(x_i)`, without overflow; minus infinity for no terms or all of them minus
+/// infinity.
+fn log_sum_exp(x: impl IntoIterator<Item = f64> + Clone) -> f64 {
+    let top = x.clone().into_iter().fold(f64::NEG_INFINITY, f64::max);
+    if top == f64::NEG_INFINITY {
+        return top;
+    }
+    top + x.into_iter().map(|v| (v - top).exp()).sum::<f64>().ln()
 }
 
 /// Probabilities from log-weights (`-inf` allowed), max-shifted for stability.

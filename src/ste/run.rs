@@ -378,6 +378,10 @@ pub struct Episode {
     /// [`crate::ste::SteParams::background_rise`]) and their posterior at the end.
     #[serde(default)]
     pub backgrounds: Vec<[f64; 2]>,
+    /// The posterior probability of a steady wind against a wandering one at the end, when
+    /// the estimator weighs a wander ([`crate::ste::SteParams::wander_deg`]).
+    #[serde(default)]
+    pub steady_wind: Option<f64>,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
 }
@@ -647,6 +651,7 @@ pub fn run_episode(
         wind_scales: world.marginal(est.bank_posterior(), |b| b.wind_scale),
         wind_spreads: world.marginal(est.bank_posterior(), |b| b.spread_deg),
         backgrounds: est.backgrounds(),
+        steady_wind: est.steady_posterior(),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })
 }

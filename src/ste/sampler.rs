@@ -6,6 +6,8 @@
 //! between the four nearest cell centres; solid cells are left out and the weights of the others
 //! renormalised, so values next to an obstacle are not dragged towards its zero).
 
+use std::sync::{Arc, Mutex};
+
 use ndarray::{Array3, Axis};
 
 use crate::error::{Error, Result};
@@ -18,7 +20,13 @@ pub struct FieldSampler {
     layout: Layout,
     candidates: Vec<[f64; 2]>,
     by_cell: Vec<f32>,
+    /// The turned copies made so far (angle in degrees, copy), shared by clones: see
+    /// [`FieldSampler::turned`].
+    turned: Arc<Mutex<Vec<Turned>>>,
 }
+
+/// A turned copy of a sampler: the angle (degrees) and the copy.
+type Turned = (f64, Arc<FieldSampler>);
 
 impl FieldSampler {
     /// Transposes a bank made for `layout`.
@@ -51,7 +59,31 @@ impl FieldSampler {
             layout: layout.clone(),
             candidates: bank.candidates.clone(),
             by_cell,
+            turned: Arc::default(),
         })
+    }
+
+    /// This bank under a wind turned by `angle_deg` ([`PlumeBank::turned`]), made once per
+    /// angle and kept, so that every estimator over this sampler shares it; 0 is the sampler
+    /// itself.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for an angle that is not within 90 degrees either way.
+    pub fn turned(self: &Arc<Self>, angle_deg: f64) -> Result<Arc<Self>> {
+        if angle_deg == 0.0 {
+            return Ok(Arc::clone(self));
+        }
+        // Held while a copy is made, so that concurrent callers make it once.
+        let mut made = self.turned.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, copy)) = made.iter().find(|(a, _)| *a == angle_deg) {
+            return Ok(Arc::clone(copy));
+        }
+        let copy = Arc::new(Self::new(
+            &self.layout,
+            &self.bank().turned(&self.layout, angle_deg)?,
+        )?);
+        made.push((angle_deg, Arc::clone(&copy)));
+        Ok(copy)
     }
 
     /// The layout.
