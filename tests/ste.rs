@@ -375,6 +375,23 @@ fn prior_is_uniform_on_its_support_and_zero_elsewhere() {
 /// The likelihood, brute force: features from scratch, the paper's formula (and, for rank,
 /// with our clean-air ties, rank tolerance and background nuisance as well as without), with
 /// and without the sensor lag (in the sensor's response `c^a`, and in the concentration).
+/// Every candidate's estimated concentration (ppm) at each sample, one row per sample, through
+/// the estimator's own interpolation (not under test in the brute-force checks).
+fn gathered_rows(
+    sampler: &plumenet::ste::sampler::FieldSampler,
+    samples: &[Sample],
+    ppm_per_unit: f64,
+) -> Vec<Vec<f32>> {
+    samples
+        .iter()
+        .map(|s| {
+            let mut row = vec![0.0f32; sampler.len()];
+            sampler.gather(s.x, s.y, ppm_per_unit as f32, &mut row);
+            row
+        })
+        .collect()
+}
+
 #[test]
 fn posterior_matches_the_papers_formula_by_brute_force() {
     use plumenet::ste::posterior::clean_air_ties;
@@ -442,15 +459,7 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
         let m = features(&values);
         let n = samples.len() as f64;
         let var = params.sigmas.model.powi(2) + params.sigmas.measurement.powi(2);
-        // Estimated concentrations through the estimator's own interpolation (not under test).
-        let rows: Vec<Vec<f32>> = samples
-            .iter()
-            .map(|s| {
-                let mut row = vec![0.0f32; sampler.len()];
-                sampler.gather(s.x, s.y, params.ppm_per_unit as f32, &mut row);
-                row
-            })
-            .collect();
+        let rows = gathered_rows(sampler, &samples, params.ppm_per_unit);
         // Rank marginalises a rising background (0, half and the whole of the rise); the
         // posterior sums each candidate's likelihood over them.
         let a = params.background_rise;
@@ -621,14 +630,7 @@ fn the_wander_marginal_matches_its_formula_by_brute_force() {
         let parts: Vec<Vec<[f64; 3]>> = turned
             .iter()
             .map(|sampler| {
-                let rows: Vec<Vec<f32>> = samples
-                    .iter()
-                    .map(|s| {
-                        let mut row = vec![0.0f32; sampler.len()];
-                        sampler.gather(s.x, s.y, params.ppm_per_unit as f32, &mut row);
-                        row
-                    })
-                    .collect();
+                let rows = gathered_rows(sampler, &samples, params.ppm_per_unit);
                 (0..sampler.len())
                     .map(|k| {
                         let c: Vec<f64> = rows
