@@ -520,9 +520,10 @@ impl Estimator {
             .iter()
             .flat_map(|s| angles.iter().map(|&a| s.turned(a)))
             .collect::<Result<Vec<_>>>()?;
-        let weights: Vec<f64> = angles
+        // Gaussian in the turn's standard deviations; the steady direction alone without it.
+        let weights: Vec<f64> = WANDER_NODES[..angles.len()]
             .iter()
-            .map(|a| -0.5 * (a / params.wander_deg.max(f64::MIN_POSITIVE)).powi(2))
+            .map(|u| -0.5 * u * u)
             .collect();
         let backgrounds = background_levels(&params);
         let slots = samplers.len() * backgrounds.len() * n;
@@ -778,7 +779,7 @@ impl Estimator {
                 (factor * sum, parts)
             })
             .collect();
-        let log_lik = self.wander_marginal(&slot_lik, positions);
+        let (log_lik, steady_share) = self.wander_marginal(&slot_lik, positions);
         let log_post: Vec<f64> = log_lik
             .chunks(positions)
             .flat_map(|bank| self.log_prior.iter().zip(bank).map(|(a, b)| a + b))
@@ -792,14 +793,8 @@ impl Estimator {
         let levels = self.backgrounds.len();
         let slot_mass: Vec<f64> = joint.chunks(positions).map(|b| b.iter().sum()).collect();
         self.bank_posterior = slot_mass.chunks(levels).map(|b| b.iter().sum()).collect();
-        if self.turns > 1 {
-            let steady = log_lik.iter().zip(&joint).enumerate().map(|(c, (l, p))| {
-                let (bank, rest) = (c / (levels * positions), c % (levels * positions));
-                let unturned = slot_lik[bank * self.turns * levels * positions + rest].0;
-                p * (WANDER_STEADY.ln() + unturned - l).exp()
-            });
-            self.steady_posterior = Some(steady.sum());
-        }
+        self.steady_posterior =
+            steady_share.map(|share| share.iter().zip(&joint).map(|(s, p)| s * p).sum());
         self.background_posterior = (0..levels)
             .map(|l| slot_mass.iter().skip(l).step_by(levels).sum())
             .collect();
@@ -810,15 +805,20 @@ impl Estimator {
     /// (whole-run log-likelihood, per-segment log-likelihoods), marginalised over the wind's
     /// wander (see [`SteParams::wander_deg`]): `p0 L_steady + (1 - p0) prod_s sum_t w_t L_(s,t)`
     /// in logs, `p0` the steady wind's prior, `w_t` the turns' and `L_(s,t)` segment `s`'s
-    /// likelihood under turn `t`. With a steady wind, the slots' own log-likelihoods.
-    fn wander_marginal(&self, slot_lik: &[(f64, Vec<f64>)], positions: usize) -> Vec<f64> {
+    /// likelihood under turn `t`; beside it, each one's share `p0 L_steady / L` of the steady
+    /// wind. With a steady wind, the slots' own log-likelihoods and no share.
+    fn wander_marginal(
+        &self,
+        slot_lik: &[(f64, Vec<f64>)],
+        positions: usize,
+    ) -> (Vec<f64>, Option<Vec<f64>>) {
         if self.turns == 1 {
-            return slot_lik.iter().map(|l| l.0).collect();
+            return (slot_lik.iter().map(|l| l.0).collect(), None);
         }
         let levels = self.backgrounds.len();
         let per_turn = levels * positions;
         let combined = self.samplers.len() / self.turns * per_turn;
-        (0..combined)
+        let (log_lik, share): (Vec<f64>, Vec<f64>) = (0..combined)
             .into_par_iter()
             .map(|c| {
                 let (bank, rest) = (c / per_turn, c % per_turn);
@@ -830,12 +830,12 @@ impl Estimator {
                         log_sum_exp(terms)
                     })
                     .sum();
-                log_sum_exp([
-                    WANDER_STEADY.ln() + slot(0).0,
-                    (1.0 - WANDER_STEADY).ln() + wandering,
-                ])
+                let steady = WANDER_STEADY.ln() + slot(0).0;
+                let both = log_sum_exp([steady, (1.0 - WANDER_STEADY).ln() + wandering]);
+                (both, (steady - both).exp())
             })
-            .collect()
+            .unzip();
+        (log_lik, Some(share))
     }
 
     /// Passes every candidate's estimated series through the sensor's first-order dynamics
