@@ -394,27 +394,37 @@ fn localize_writes_the_run_and_its_pictures() {
     // Rank marginalises a rising background by default (rises 0, 0.25 and 0.5 fully mixed).
     assert_eq!(run["config"]["ste"]["background_rise"], 0.5);
     assert_eq!(run["backgrounds"].as_array().unwrap().len(), 3);
-    // The sensor lag acts on the concentration and the floor is 1 ppm unless said otherwise.
-    assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], 1.0);
-    assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 1.0);
+    // Rank lags its estimates in the sensor's response, 1/1.58, with a 0.2 ppm floor, unless
+    // said otherwise.
+    let response = 1.0 / 1.58;
+    assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], response);
+    assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 0.2);
     let surrogate_json = tmp.path().join("plumenet.json");
     // (flags, model rank factor, background rise, lag exponent, detection floor)
     for (flags, factor, rise, exponent, floor) in [
-        (&[][..], 3.0, 0.5, 1.0, 1.0),
+        (&[][..], 3.0, 0.5, response, 0.2),
         (
             &["--model-rank-factor", "1.5", "--background-rise", "0"][..],
             1.5,
             0.0,
+            response,
+            0.2,
+        ),
+        (&["--feature", "value"][..], 3.0, 0.0, 1.0, 1.0),
+        (&["--paper-rank"][..], 1.0, 0.0, 1.0, 1.0),
+        (
+            &["--lag-exponent", "1", "--detection-floor", "1"][..],
+            3.0,
+            0.5,
             1.0,
             1.0,
         ),
-        (&["--feature", "value"][..], 3.0, 0.0, 1.0, 1.0),
         (
-            &["--lag-exponent", "0.633", "--detection-floor", "0.2"][..],
-            3.0,
+            &["--paper-rank", "--lag-exponent", "0.5"][..],
+            1.0,
+            0.0,
             0.5,
-            0.633,
-            0.2,
+            1.0,
         ),
     ] {
         let mut args = vec![

@@ -117,8 +117,19 @@ fn the_lag_in_the_sensors_response_orders_its_readings() {
     };
     let exponent = p.response_exponent();
     assert!((exponent - 1.0 / 1.58).abs() < 1e-12);
+    // Rank lags its estimates in the response by default, the other features in c.
     assert_eq!(
         SteParams::for_feature(Feature::Rank).sensor_lag_exponent,
+        exponent
+    );
+    assert_eq!(
+        SteParams::for_feature(Feature::Rank)
+            .papers_rank()
+            .sensor_lag_exponent,
+        1.0
+    );
+    assert_eq!(
+        SteParams::for_feature(Feature::Value).sensor_lag_exponent,
         1.0
     );
     let ours = spearman(&readings, &lagged(exponent));
@@ -417,8 +428,8 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
             }),
             rank,
             SteParams {
-                sensor_lag_exponent: MoxParams::for_preset(SensorPreset::SensorII)
-                    .response_exponent(),
+                sensor_lag_exponent: 1.0,
+                detection_floor_ppm: 1.0,
                 ..rank
             },
             SteParams::for_feature(Feature::Value),
@@ -914,6 +925,7 @@ fn synthetic_log(layout: &Layout, source: [f64; 2]) -> String {
         .solve(source[0], source[1])
         .unwrap();
     let sensor = MoxParams::for_preset(SensorPreset::SensorII);
+    let floor = SteParams::for_feature(Feature::Rank).detection_floor_ppm;
     let mut csv = String::from("t,x,y,value\n");
     let mut t = 0.0;
     for row in 0..7 {
@@ -922,9 +934,9 @@ fn synthetic_log(layout: &Layout, source: [f64; 2]) -> String {
             let x = 0.3 + 0.25 * f64::from(col);
             if layout.is_free(x, y) {
                 let (j, i) = layout.cell_of(x, y);
-                // Below 1 ppm the sensor sees clean air (the estimator's detection floor).
+                // Below rank's detection floor the sensor sees clean air.
                 let c = field[[j, i]];
-                let v = sensor.steady_voltage(if c * sensor.ppm_per_unit < 1.0 {
+                let v = sensor.steady_voltage(if c * sensor.ppm_per_unit < floor {
                     0.0
                 } else {
                     c

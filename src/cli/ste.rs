@@ -22,8 +22,8 @@ use plumenet::ste::replay::{read_log, replay_in_steps, thin};
 use plumenet::ste::run::{StartRule, derive_seed};
 use plumenet::ste::survey::{fly, lawnmower};
 use plumenet::ste::{
-    Baselines, EpisodeConfig, Estimator, Feature, Mismatch, MoxParams, PlannerKind, Reality,
-    RobotParams, Sampling, SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
+    Baselines, EpisodeConfig, Estimator, Feature, Mismatch, PlannerKind, Reality, RobotParams,
+    Sampling, SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
 };
 use plumenet::surrogate::Surrogate;
 use plumenet::viewer::RunView;
@@ -130,14 +130,15 @@ pub struct FeatureArgs {
     #[arg(long)]
     no_lag_model: bool,
     /// The exponent of the sensor's response in which its lag acts: the estimated
-    /// concentrations are raised to it, lagged and taken back (1, the default, lags the
-    /// concentration itself; 0.633 is 1/|k| of the MiCS-5521's datasheet slope k = -1.58).
-    #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).sensor_lag_exponent)]
-    lag_exponent: f64,
+    /// concentrations are raised to it, lagged and taken back (default: for rank 1/|k| of the
+    /// MiCS-5521's datasheet slope k = -1.58, about 0.633; for the other features 1, which
+    /// lags the concentration itself).
+    #[arg(long)]
+    lag_exponent: Option<f64>,
     /// Estimated concentrations below this many ppm are set to zero, as the sensor cannot
-    /// tell them from clean air.
-    #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).detection_floor_ppm)]
-    detection_floor: f64,
+    /// tell them from clean air (default: 0.2 for rank, 1 for the other features).
+    #[arg(long, allow_negative_numbers = true)]
+    detection_floor: Option<f64>,
     /// Rank only: the factor within which the plume model's concentrations are trusted; the
     /// share of estimates within it adds to each rank's model error (1 turns it off).
     #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
@@ -176,8 +177,9 @@ pub struct FeatureArgs {
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     wind_wander: f64,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
-    /// the model), rank tolerance, expected model ranks and background nuisance (exactly
-    /// invariant under every increasing transform of the readings).
+    /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
+    /// sensor's response with its lower floor (the other features' lag and floor instead);
+    /// exactly invariant under every increasing transform of the readings.
     #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
     paper_rank: bool,
 }
@@ -201,8 +203,6 @@ impl FeatureArgs {
         if self.no_lag_model {
             p.sensor_lag_s = None;
         }
-        p.sensor_lag_exponent = self.lag_exponent;
-        p.detection_floor_ppm = self.detection_floor;
         p.rank_tolerance = self.rank_tolerance;
         p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
         p.clean_air_window_s = self.clean_air_window;
@@ -215,6 +215,12 @@ impl FeatureArgs {
         p.wander_deg = self.wind_wander;
         if self.paper_rank {
             p = p.papers_rank();
+        }
+        if let Some(a) = self.lag_exponent {
+            p.sensor_lag_exponent = a;
+        }
+        if let Some(f) = self.detection_floor {
+            p.detection_floor_ppm = f;
         }
         p
     }
@@ -1270,10 +1276,10 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
                 },
             ),
             (
-                "rank-lag-resp",
+                "rank-lag-c",
                 SteParams {
-                    sensor_lag_exponent: MoxParams::for_preset(SensorPreset::SensorII)
-                        .response_exponent(),
+                    sensor_lag_exponent: SteParams::for_feature(Feature::Value).sensor_lag_exponent,
+                    detection_floor_ppm: SteParams::for_feature(Feature::Value).detection_floor_ppm,
                     ..rank
                 },
             ),
