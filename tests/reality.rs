@@ -431,11 +431,11 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
     assert!(world.sampler.candidates().contains(&source));
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     assert_eq!(config.ste.background_rise, 0.5);
-    let lag_in_c = SteParams {
-        sensor_lag_exponent: 1.0,
-        detection_floor_ppm: 1.0,
-        ..config.ste
-    };
+    let lag_in_c = config.ste.lag_in_concentration();
+    assert_eq!(
+        (lag_in_c.sensor_lag_exponent, lag_in_c.detection_floor_ppm),
+        (1.0, 1.0)
+    );
     let alone = |ste: SteParams| SteParams {
         background_rise: 0.0,
         ..ste

@@ -427,11 +427,7 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                 ..rank
             }),
             rank,
-            SteParams {
-                sensor_lag_exponent: 1.0,
-                detection_floor_ppm: 1.0,
-                ..rank
-            },
+            rank.lag_in_concentration(),
             SteParams::for_feature(Feature::Value),
             SteParams {
                 sensor_lag_exponent: 0.5,

@@ -1275,14 +1275,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
                     ..rank
                 },
             ),
-            (
-                "rank-lag-c",
-                SteParams {
-                    sensor_lag_exponent: SteParams::for_feature(Feature::Value).sensor_lag_exponent,
-                    detection_floor_ppm: SteParams::for_feature(Feature::Value).detection_floor_ppm,
-                    ..rank
-                },
-            ),
+            ("rank-lag-c", rank.lag_in_concentration()),
             ("rank-paper", rank.papers_rank()),
         ]);
     for (name, params) in variants {
