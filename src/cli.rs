@@ -102,9 +102,11 @@ struct TrainArgs {
     #[arg(long, default_value_t = 6)]
     patience: usize,
     /// Input channels: geometry (mask, distance, source), physics (+ cell Peclet number), wind
-    /// (+ the solved wind) or analytic (+ the analytic plume in uniform wind).
-    #[arg(long, value_enum, default_value_t = InputsArg::Analytic)]
-    inputs: InputsArg,
+    /// (+ the solved wind), analytic (+ the analytic plume in uniform wind; the default) or
+    /// walled (+ the analytic plume between the room's side walls). With --init-from, the
+    /// start's inputs unless given (they must have as many channels as the start's).
+    #[arg(long, value_enum)]
+    inputs: Option<InputsArg>,
     /// Channels per U-Net level, shallow to deep, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,32,32")]
     filters: Vec<usize>,
@@ -145,6 +147,7 @@ enum InputsArg {
     Physics,
     Wind,
     Analytic,
+    Walled,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -589,12 +592,14 @@ pub(crate) fn export_dir(prefix: &str) -> Result<tempfile::TempDir> {
 fn train(a: TrainArgs) -> Result<()> {
     let dirs: Vec<&Path> = a.data.iter().map(PathBuf::as_path).collect();
     let data = TrainingData::load_all(&dirs)?;
-    let inputs = match a.inputs {
+    let chosen = a.inputs.map(|i| match i {
         InputsArg::Geometry => InputSet::Geometry,
         InputsArg::Physics => InputSet::Physics,
         InputsArg::Wind => InputSet::Wind,
         InputsArg::Analytic => InputSet::Analytic,
-    };
+        InputsArg::Walled => InputSet::Walled,
+    });
+    let inputs = chosen.unwrap_or_default();
     let mut config = TrainingConfig {
         epochs: a.epochs,
         batch_size: a.batch_size,
@@ -622,7 +627,7 @@ fn train(a: TrainArgs) -> Result<()> {
         let start = Surrogate::load(dir)?;
         let saved = start.saved();
         config.model = saved.architecture.clone();
-        config.inputs = saved.training.inputs;
+        config.inputs = chosen.unwrap_or(saved.training.inputs);
         config.init_from = Some(WarmStart {
             model: dir.display().to_string(),
             weights_digest: saved.weights_digest.clone(),

@@ -607,6 +607,69 @@ fn the_analytic_input_is_the_transformed_unbounded_plume() {
     assert!(plane(6, 8, 12) > plane(6, 8, 4), "downwind above upwind");
 }
 
+/// The walled prior channel is the transformed plume between the room's side walls, and in the
+/// empty tunnel, whose only boundaries upwind of the outlet are those walls, it is far closer to
+/// the solver's field than the unbounded prior.
+#[test]
+fn the_walled_input_is_the_plume_between_the_side_walls() {
+    use plumenet::physics::analytic::point_source_between_walls;
+    use plumenet::physics::transport::Transport;
+    use plumenet::physics::wind::WindField;
+    use plumenet::surrogate::data::{InputSet, Normalization, RoomPlanes, SourceEncoding};
+    let layout = crate::common::empty_tunnel();
+    let wind = WindField::solve(&layout).unwrap();
+    let room = RoomPlanes::new(&layout, Some(&wind));
+    let norm = Normalization::default();
+    let (h, w) = room.shape();
+    let source = [3.0, 0.6];
+    let prior = |inputs| {
+        let mut out = vec![0.0f32; 7 * h * w];
+        room.encode(
+            source,
+            inputs,
+            SourceEncoding::Gaussian,
+            &norm,
+            (h, w),
+            &mut out,
+        )
+        .unwrap();
+        out.split_off(6 * h * w)
+    };
+    let (walled, free) = (prior(InputSet::Walled), prior(InputSet::Analytic));
+    let (j, i) = (30, 120); // cell centre (15.0625, 3.8125), far downwind, by the far wall
+    let (x, y) = ((i as f64 + 0.5) * 0.125, (j as f64 + 0.5) * 0.125);
+    let expected =
+        point_source_between_walls((x, y), (3.0, 0.6), 0.75, layout.diffusivity(), 4.0, 1.0);
+    let got = norm.inverse(walled[j * w + i], 0.75) as f64;
+    assert!(
+        (got - expected).abs() <= 1e-4 * expected,
+        "{got} vs {expected}"
+    );
+    let field = Transport::new(&layout, &wind)
+        .unwrap()
+        .solve(3.0, 0.6)
+        .unwrap();
+    let error = |plane: &[f32]| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for ((j, i), &c) in field.indexed_iter() {
+            let x = (i as f64 + 0.5) * 0.125;
+            if (x - 3.0).hypot((j as f64 + 0.5) * 0.125 - 0.6) < 0.5 || x > 17.0 {
+                continue;
+            }
+            let p = f64::from(norm.inverse(plane[j * w + i], 0.75));
+            num += (p - c).powi(2);
+            den += c * c;
+        }
+        (num / den).sqrt()
+    };
+    let (e_walled, e_free) = (error(&walled), error(&free));
+    eprintln!("relative L2 against the solver: walled prior {e_walled:.3}, unbounded {e_free:.3}");
+    assert!(
+        e_walled < 0.05 && e_free > 0.25,
+        "walled {e_walled}, unbounded {e_free}"
+    );
+}
+
 /// The prior skip feeds the analytic channel to the head beside the decoder's channels, and
 /// needs the analytic inputs.
 #[test]

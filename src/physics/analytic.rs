@@ -51,25 +51,67 @@ pub fn point_source_unbounded(
 /// `f64::INFINITY` at the source itself.
 pub fn point_source_between_walls(
     point: (f64, f64),
-    (xs, ys): (f64, f64),
+    source: (f64, f64),
     speed: f64,
     diffusivity: f64,
     height: f64,
     rate: f64,
 ) -> f64 {
-    // Every image is an unbounded source of the same rate.
-    let image = |yi: f64| point_source_unbounded(point, (xs, yi), speed, diffusivity, rate, 0.0);
-    let mut sum = image(ys) + image(-ys);
-    // Images at 2kH +- ys for k != 0; stop once a whole ring is negligible.
-    for k in 1.. {
-        let shift = 2.0 * k as f64 * height;
-        let ring = image(shift + ys) + image(-shift + ys) + image(shift - ys) + image(-shift - ys);
-        sum += ring;
-        if ring <= 1e-12 * sum || k > 10_000 {
-            break;
+    let plume = Plume {
+        speed,
+        diffusivity,
+        rate,
+    };
+    plume.between_walls(point, source, height, 0.0, 1e-12)
+}
+
+/// A point source's physics, for the image sums of [`Plume::between_walls`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plume {
+    /// Wind speed along `+x` (m/s).
+    pub speed: f64,
+    /// Diffusivity (m^2/s).
+    pub diffusivity: f64,
+    /// Release rate (units/s).
+    pub rate: f64,
+}
+
+impl Plume {
+    /// Concentration at `point` of the source at `(xs, ys)` between zero-flux walls at `y = 0`
+    /// and `y = height`: [`point_source_unbounded`] (each image's distance kept at least
+    /// `r_min`) summed over the images at `2kH +- ys`, ring by ring until a ring adds at most
+    /// `tolerance` times the sum.
+    pub fn between_walls(
+        &self,
+        point: (f64, f64),
+        (xs, ys): (f64, f64),
+        height: f64,
+        r_min: f64,
+        tolerance: f64,
+    ) -> f64 {
+        let image = |yi: f64| {
+            point_source_unbounded(
+                point,
+                (xs, yi),
+                self.speed,
+                self.diffusivity,
+                self.rate,
+                r_min,
+            )
+        };
+        let mut sum = image(ys) + image(-ys);
+        // Images at 2kH +- ys for k != 0; stop once a whole ring is negligible.
+        for k in 1.. {
+            let shift = 2.0 * k as f64 * height;
+            let ring =
+                image(shift + ys) + image(-shift + ys) + image(shift - ys) + image(-shift - ys);
+            sum += ring;
+            if ring <= tolerance * sum || k > 10_000 {
+                break;
+            }
         }
+        sum
     }
-    sum
 }
 
 /// Relative L2 error of a numerical field against [`point_source_between_walls`] over the free

@@ -31,7 +31,7 @@ use crate::frame::Frame;
 use crate::io;
 use crate::io::sha256_hex;
 use crate::layout::{Layout, LayoutSpec};
-use crate::physics::analytic::point_source_unbounded;
+use crate::physics::analytic::{Plume, point_source_unbounded};
 use crate::physics::wind::WindField;
 
 /// How the source position is given to the network.
@@ -61,6 +61,10 @@ pub enum InputSet {
     /// learn. The default: it gave the lowest validation loss in the README's ablations.
     #[default]
     Analytic,
+    /// As [`InputSet::Analytic`], but the prior is the plume between the room's two side walls
+    /// (the walls along the wind in the canonical frame; [`Plume::between_walls`], images
+    /// across the wind), so only the obstacles, inlet and outlet are the network's to learn.
+    Walled,
 }
 
 impl InputSet {
@@ -70,13 +74,18 @@ impl InputSet {
             InputSet::Geometry => 3,
             InputSet::Physics => 4,
             InputSet::Wind => 6,
-            InputSet::Analytic => 7,
+            InputSet::Analytic | InputSet::Walled => 7,
         }
     }
 
     /// Whether the inputs need the solved wind.
     pub fn needs_wind(self) -> bool {
-        matches!(self, InputSet::Wind | InputSet::Analytic)
+        matches!(self, InputSet::Wind | InputSet::Analytic | InputSet::Walled)
+    }
+
+    /// Whether the inputs carry an analytic prior channel (the network's seventh).
+    pub fn has_prior(self) -> bool {
+        matches!(self, InputSet::Analytic | InputSet::Walled)
     }
 }
 
@@ -240,6 +249,11 @@ impl RoomPlanes {
             (true, Some(wind)) => Some(wind),
             (false, _) => None,
         };
+        let plume = Plume {
+            speed: self.speed_mps,
+            diffusivity: self.diffusivity_m2ps,
+            rate: 1.0,
+        };
         for ((j, i), &m) in self.mask.indexed_iter() {
             let k = j * wp + i;
             out[k] = m;
@@ -257,15 +271,19 @@ impl RoomPlanes {
                 out[4 * plane + k] = u[[j, i]];
                 out[5 * plane + k] = v[[j, i]];
             }
-            if inputs == InputSet::Analytic && m == 0.0 {
-                let c = point_source_unbounded(
-                    (x, y),
-                    (sx, sy),
-                    self.speed_mps,
-                    self.diffusivity_m2ps,
-                    1.0,
-                    0.25 * cell,
-                );
+            if inputs.has_prior() && m == 0.0 {
+                let c = if inputs == InputSet::Walled {
+                    plume.between_walls((x, y), (sx, sy), height, 0.25 * cell, 1e-6)
+                } else {
+                    point_source_unbounded(
+                        (x, y),
+                        (sx, sy),
+                        self.speed_mps,
+                        self.diffusivity_m2ps,
+                        1.0,
+                        0.25 * cell,
+                    )
+                };
                 out[6 * plane + k] = norm.forward(c as f32, self.speed_mps);
             }
         }

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use ndarray::{Array2, Array3};
+use rayon::prelude::*;
 
 use super::data::{RoomPlanes, padded_shape};
 use super::model::{ConvImpl, PlumeNet};
@@ -145,16 +146,21 @@ impl Surrogate {
     ) -> Result<Vec<f32>> {
         let per_sample = self.channels() * h * w;
         let mut input = vec![0.0f32; sources.len() * per_sample];
-        for (slot, &source) in input.chunks_mut(per_sample).zip(sources) {
-            room.encode(
-                source,
-                self.saved.training.inputs,
-                self.saved.encoding,
-                &self.saved.normalization,
-                (h, w),
-                slot,
-            )?;
-        }
+        // Samples are independent: encode them in parallel (the priors' Bessel functions are
+        // a visible part of a large room's bank time).
+        input
+            .par_chunks_mut(per_sample)
+            .zip(sources)
+            .try_for_each(|(slot, &source)| {
+                room.encode(
+                    source,
+                    self.saved.training.inputs,
+                    self.saved.encoding,
+                    &self.saved.normalization,
+                    (h, w),
+                    slot,
+                )
+            })?;
         Ok(input)
     }
 

@@ -16,7 +16,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
-use super::data::{InputSet, TrainingData, size_class};
+use super::data::{TrainingData, size_class};
 use super::inference::Surrogate;
 use super::model::PlumeNet;
 use super::saved::{SavedModel, load_weights, weights_bytes};
@@ -65,8 +65,8 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
             config.inputs.channels()
         )));
     }
-    if config.model.skips_prior() && config.inputs != InputSet::Analytic {
-        return bad("the prior skip needs the analytic inputs");
+    if config.model.skips_prior() && !config.inputs.has_prior() {
+        return bad("the prior skip needs inputs with a prior (analytic or walled)");
     }
     if config.pad_cells == 0 {
         return bad("pad_cells must be at least 1");
