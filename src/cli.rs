@@ -107,9 +107,11 @@ struct TrainArgs {
     /// start's inputs unless given (they must have as many channels as the start's).
     #[arg(long, value_enum)]
     inputs: Option<InputsArg>,
-    /// Channels per U-Net level, shallow to deep, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "8,16,32,32,32")]
-    filters: Vec<usize>,
+    /// Channels per U-Net level, shallow to deep, comma-separated (default 8,16,32,32,32).
+    /// With --init-from, the start's unless given; more channels than the start's at some
+    /// levels widen it, the new channels starting so that the network's output is unchanged.
+    #[arg(long, value_delimiter = ',')]
+    filters: Option<Vec<usize>>,
     /// Hand the analytic prior straight to the output layer (the network learns a correction
     /// to it); needs --inputs analytic.
     #[arg(long)]
@@ -609,7 +611,11 @@ fn train(a: TrainArgs) -> Result<()> {
         inputs,
         model: PlumeNetConfig::new()
             .with_in_channels(inputs.channels())
-            .with_filters(a.filters.clone())
+            .with_filters(
+                a.filters
+                    .clone()
+                    .unwrap_or_else(|| PlumeNetConfig::new().filters),
+            )
             .with_prior_skip(a.prior_skip.then_some(true)),
         encoding: match a.encoding {
             EncodingArg::Gaussian => SourceEncoding::Gaussian,
@@ -627,6 +633,9 @@ fn train(a: TrainArgs) -> Result<()> {
         let start = Surrogate::load(dir)?;
         let saved = start.saved();
         config.model = saved.architecture.clone();
+        if let Some(filters) = &a.filters {
+            config.model.filters = filters.clone();
+        }
         config.inputs = chosen.unwrap_or(saved.training.inputs);
         config.init_from = Some(WarmStart {
             model: dir.display().to_string(),

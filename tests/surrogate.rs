@@ -670,6 +670,89 @@ fn the_walled_input_is_the_plume_between_the_side_walls() {
     );
 }
 
+/// A network widened at some levels computes what the trained one did (the new channels feed
+/// nothing yet), with and without the prior skip, with more weights; a narrower or deeper
+/// network is refused.
+#[test]
+fn a_widened_network_computes_what_it_was_widened_from() {
+    use burn::tensor::Tensor;
+    let device = plumenet::surrogate::backend::device();
+    let input: Vec<f32> = (0..2 * 7 * 16 * 24)
+        .map(|k| ((k * 7919) % 1000) as f32 / 500.0 - 1.0)
+        .collect();
+    let x = || {
+        Tensor::<4>::from_data(
+            burn::tensor::TensorData::new(input.clone(), [2, 7, 16, 24]),
+            &device,
+        )
+    };
+    for skip in [None, Some(true)] {
+        let from = PlumeNetConfig::new()
+            .with_filters(vec![4, 6, 8])
+            .with_convs_per_level(2)
+            .with_kernel_size(3)
+            .with_prior_skip(skip);
+        let to = from.clone().with_filters(vec![5, 6, 12]);
+        let net = from.init_seeded(&device, 3);
+        let wide = net.widened(&from, &to, 9, &device).unwrap();
+        let a: Vec<f32> = net.forward(x()).into_data().try_to_vec::<f32>().unwrap();
+        let b: Vec<f32> = wide.forward(x()).into_data().try_to_vec::<f32>().unwrap();
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f32::max);
+        let scale = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(
+            worst <= 1e-5 * scale.max(1.0),
+            "{skip:?}: {worst} of {scale}"
+        );
+        let sizes = |n: &plumenet::surrogate::PlumeNet| {
+            plumenet::surrogate::saved::named_tensors(n)
+                .unwrap()
+                .iter()
+                .map(|(_, t)| t.len())
+                .sum::<usize>()
+        };
+        assert!(sizes(&wide) > sizes(&net));
+    }
+    let from = PlumeNetConfig::new().with_filters(vec![4, 8]);
+    let net = from.init_seeded(&device, 0);
+    for bad in [vec![4, 6], vec![4, 8, 8]] {
+        let to = from.clone().with_filters(bad);
+        let err = net.widened(&from, &to, 0, &device).unwrap_err();
+        assert!(err.to_string().contains("do not widen"), "{err}");
+    }
+}
+
+/// `train` with wider filters than its warm start widens the start and saves the wider
+/// network; narrower filters are refused.
+#[test]
+fn training_can_widen_the_model_it_starts_from() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let base = tiny_config(1);
+    train(&data, &base, &tmp.path().join("base"), &mut |_| ()).unwrap();
+    let start = plumenet::surrogate::Surrogate::load(&tmp.path().join("base")).unwrap();
+    let mut wide = tiny_config(1);
+    wide.model = base.model.clone().with_filters(vec![6, 12]);
+    wide.init_from = Some(plumenet::surrogate::config::WarmStart {
+        model: tmp.path().join("base").display().to_string(),
+        weights_digest: start.saved().weights_digest.clone(),
+    });
+    let state = train(&data, &wide, &tmp.path().join("wide"), &mut |_| ()).unwrap();
+    let saved = plumenet::surrogate::Surrogate::load(&tmp.path().join("wide")).unwrap();
+    assert_eq!(saved.saved().architecture.filters, vec![6, 12]);
+    assert!(state.best.unwrap().validation.is_finite());
+    // Narrower than the start: refused before training.
+    wide.model = base.model.clone().with_filters(vec![2, 8]);
+    let err = train(&data, &wide, &tmp.path().join("narrow"), &mut |_| ()).unwrap_err();
+    assert!(
+        err.to_string().contains("not the model to start from"),
+        "{err}"
+    );
+}
+
 /// The prior skip feeds the analytic channel to the head beside the decoder's channels, and
 /// needs the analytic inputs.
 #[test]

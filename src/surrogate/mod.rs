@@ -15,6 +15,7 @@ pub mod inference;
 pub mod model;
 pub mod saved;
 pub mod training;
+pub mod widen;
 
 pub use config::TrainingConfig;
 pub use data::{Normalization, SourceEncoding, TrainingData};

@@ -77,7 +77,7 @@ fn uniform<const D: usize>(
 /// A block of convolutions with ReLU.
 #[derive(Module, Debug)]
 pub struct ConvBlock {
-    convs: Vec<Conv2d>,
+    pub(super) convs: Vec<Conv2d>,
 }
 
 impl ConvBlock {
@@ -104,11 +104,11 @@ impl ConvBlock {
 /// The U-Net.
 #[derive(Module, Debug)]
 pub struct PlumeNet {
-    encoders: Vec<ConvBlock>,
+    pub(super) encoders: Vec<ConvBlock>,
     pool: MaxPool2d,
-    ups: Vec<ConvTranspose2d>,
-    decoders: Vec<ConvBlock>,
-    head: Conv2d,
+    pub(super) ups: Vec<ConvTranspose2d>,
+    pub(super) decoders: Vec<ConvBlock>,
+    pub(super) head: Conv2d,
     prior_skip: bool,
 }
 

@@ -66,7 +66,7 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
         )));
     }
     if config.model.skips_prior() && !config.inputs.has_prior() {
-        return bad("the prior skip needs inputs with a prior (analytic or walled)");
+        return bad("the prior skip needs the analytic inputs (analytic or walled)");
     }
     if config.pad_cells == 0 {
         return bad("pad_cells must be at least 1");
@@ -252,13 +252,16 @@ fn initial_model(config: &TrainingConfig, device: &Device) -> Result<PlumeNet> {
         return Ok(config.model.init_seeded(device, config.seed));
     };
     let (saved, net) = SavedModel::load(Path::new(&warm.model), device)?;
-    if saved.architecture != config.model || saved.weights_digest != warm.weights_digest {
+    if !config.model.widens(&saved.architecture) || saved.weights_digest != warm.weights_digest {
         return Err(Error::Model(format!(
             "{} is not the model to start from: its architecture or weights differ from the run's",
             warm.model
         )));
     }
-    Ok(net)
+    if saved.architecture == config.model {
+        return Ok(net);
+    }
+    net.widened(&saved.architecture, &config.model, config.seed, device)
 }
 
 /// Trains (or resumes training) on `data`, writing the model to `out`.
