@@ -113,7 +113,7 @@ struct TrainArgs {
     #[arg(long, value_delimiter = ',')]
     filters: Option<Vec<usize>>,
     /// Hand the analytic prior straight to the output layer (the network learns a correction
-    /// to it); needs --inputs analytic.
+    /// to it); needs inputs with that prior (analytic or walled).
     #[arg(long)]
     prior_skip: bool,
     /// Start from this trained model's weights (its architecture and inputs too) instead of

@@ -252,10 +252,18 @@ fn initial_model(config: &TrainingConfig, device: &Device) -> Result<PlumeNet> {
         return Ok(config.model.init_seeded(device, config.seed));
     };
     let (saved, net) = SavedModel::load(Path::new(&warm.model), device)?;
-    if !config.model.widens(&saved.architecture) || saved.weights_digest != warm.weights_digest {
+    if saved.weights_digest != warm.weights_digest {
         return Err(Error::Model(format!(
-            "{} is not the model to start from: its architecture or weights differ from the run's",
+            "{} is not the model to start from: its weights differ from the run's",
             warm.model
+        )));
+    }
+    if !config.model.widens(&saved.architecture) {
+        return Err(Error::Model(format!(
+            "{} is not the model to start from: its architecture (filters {:?}) is not the \
+             run's (filters {:?}) and the run's does not widen it (same levels, kernel, \
+             convolutions per level, inputs and prior skip, at least as many channels at each)",
+            warm.model, saved.architecture.filters, config.model.filters
         )));
     }
     if saved.architecture == config.model {
