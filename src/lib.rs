@@ -1,29 +1,61 @@
 //! # plumenet
 //!
 //! Calibration-free gas source localisation with mobile robots: a dispersion simulator, a
-//! data-driven plume model and rank-based Bayesian source term estimation.
+//! data-driven plume model (PlumeNet, a U-Net in Burn) and rank-based Bayesian source term
+//! estimation (STE) that never needs the gas sensor calibrated.
 //!
-//! The pipeline (see `DESIGN.md`):
+//! The crate's three uses, each an example under `examples/`:
+//! - generate plume maps with the physics solver and train PlumeNet on them
+//!   ([`generate`], [`train`]; `examples/train.rs`);
+//! - batch-predict the plume of every candidate source in a room ([`PlumeModel::bank`] of a
+//!   [`Surrogate`] or the [`PhysicsSolver`]; `examples/predict.rs`);
+//! - drive an STE [`Session`] from a robot's own loop: readings in, goals out, until the
+//!   source is found (`examples/robot_loop.rs`).
 //!
-//! ```text
-//! Layout (JSON) --> wind field (steady 2D flow around obstacles)        physics::wind
-//!               --> mean concentration c(x, y | source)                  physics::transport
-//!               --> dataset (many layouts x sources, .npy + manifest)    dataset
-//!               --> PlumeNet training, models/<name>/                    surrogate
-//! Layout + model --> bank: one predicted field per candidate cell         plume (cached)
-//! Reality: intermittent filament plume over the same wind                physics::filament
-//!          --> MOX sensor on a robot driving A* paths at 10 Hz           ste::sensor, ste::robot
-//! STE: features --> likelihood --> posterior --> planner --> ...         ste
+//! The physics solver's plume of one source in the paper's arena, and the shipped PlumeNet's
+//! prediction of the same field:
+//!
+//! ```
+//! use plumenet::{Layout, PlumeModel, PhysicsSolver, Surrogate};
+//!
+//! # fn main() -> plumenet::Result<()> {
+//! let room = Layout::load("data/layouts/wind-tunnel.json".as_ref())?;
+//! let source = [[4.5, 2.5]];
+//! let exact = PhysicsSolver.bank(&room, &source)?;
+//! let model = Surrogate::load("models/default".as_ref())?;
+//! let predicted = model.bank(&room, &source)?;
+//! // One [rows, columns] field per source, on the layout's grid.
+//! assert_eq!(exact.fields.dim(), predicted.fields.dim());
+//! # Ok(())
+//! # }
 //! ```
 //!
-//! Modules own one box each: [`layout`] (arena, obstacles, validation), [`frame`] (the arena
-//! turned so that the wind comes from the west, where the solvers work), [`physics`] (wind,
-//! transport, filaments, analytic reference), [`dataset`] (generation, shards, manifest),
-//! [`surrogate`] (PlumeNet in Burn), [`plume`] (the plume-model trait and the bank cache),
-//! [`ste`] (sensor, features, posterior, robot, planner, runs, study), [`report`] (figures:
-//! PNG and SVG through plotters), [`viewer`] (the HTML run viewer), [`service`] (serving a live session over lines: stdin/stdout, TCP, state file), [`ros`]
-//! (the ROS 2 messages and their conversions), [`stats`] (medians and spreads), [`io`] (atomic files), [`bench`](mod@bench)
-//! (timings).
+//! A room of your own, solved exactly by the physics solver:
+//!
+//! ```
+//! use plumenet::{Layout, PlumeModel, PhysicsSolver};
+//!
+//! let room = Layout::from_json(
+//!     r#"{"width_m": 6, "height_m": 3, "cell_m": 0.25, "wind": {"speed_mps": 0.5},
+//!         "obstacles": [{"x_min": 2.5, "y_min": 0.0, "x_max": 3.0, "y_max": 1.5}]}"#,
+//! )?;
+//! let bank = PhysicsSolver.bank(&room, &[[1.0, 2.0]])?;
+//! let field = bank.fields.index_axis(ndarray::Axis(0), 0);
+//! // Downwind of the source there is gas; inside the obstacle there is none.
+//! let (j, i) = room.cell_of(4.0, 2.0);
+//! assert!(field[[j, i]] > 0.0);
+//! let (j, i) = room.cell_of(2.75, 0.5);
+//! assert_eq!(field[[j, i]], 0.0);
+//! # Ok::<(), plumenet::Error>(())
+//! ```
+//!
+//! Modules, from the ground up: [`layout`] (rooms, obstacles, validation), [`frame`] (the room
+//! turned so that the wind comes from the west), [`physics`] (wind, transport, filament plume,
+//! analytic reference), [`dataset`] (generated maps), [`surrogate`] (PlumeNet),
+//! [`plume`] (the plume-model trait and the bank cache), [`ste`] (sensor, features,
+//! posterior, planner, sessions, simulated runs and studies), [`report`] and [`viewer`]
+//! (figures and the HTML run viewer), [`service`] and [`ros`] (serving a session to a robot),
+//! [`io`] (atomic files), [`stats`]; `docs/` in the repository explains the method.
 
 #![warn(missing_docs)]
 
@@ -43,5 +75,15 @@ pub mod ste;
 pub mod surrogate;
 pub mod viewer;
 
+pub use dataset::{Distribution, GenerateConfig, RoomParams, generate};
 pub use error::{Error, Result};
 pub use layout::Layout;
+pub use physics::transport::Transport;
+pub use physics::wind::WindField;
+pub use plume::{PhysicsSolver, PlumeBank, PlumeModel};
+pub use ste::session::{Iteration, Session, SessionConfig};
+pub use ste::{
+    Baselines, Episode, EpisodeConfig, Estimator, Feature, Mismatch, MoxSensor, Sample,
+    SensorPreset, SteParams, World, run_episode,
+};
+pub use surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train};

@@ -356,11 +356,24 @@ fn localize_writes_the_run_and_its_pictures() {
     ];
     let out = plumenet_ok(&args);
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        stdout.contains("estimate") && stdout.contains("error"),
-        "{stdout}"
-    );
     let run = read_json(&json_path);
+    // The estimate and the two baselines, one line each, with the errors the JSON holds.
+    for (label, error) in [
+        ("estimate", &run["error_m"]),
+        (
+            "highest reading",
+            &run["baselines"]["highest_reading"]["error_m"],
+        ),
+        ("arena centre", &run["baselines"]["centre"]["error_m"]),
+    ] {
+        let expected = format!("error {:5.2} m", error.as_f64().unwrap());
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.trim_start().starts_with(label) && l.contains(&expected)),
+            "{label} {expected}: {stdout}"
+        );
+    }
     for key in [
         "estimate",
         "error_m",
@@ -388,6 +401,8 @@ fn localize_writes_the_run_and_its_pictures() {
     let herr = (best["x"].as_f64().unwrap() - 4.1).hypot(best["y"].as_f64().unwrap() - 2.1);
     assert!((highest["error_m"].as_f64().unwrap() - herr).abs() < 1e-9);
     assert_eq!(run["reality"]["wind_scale"], 1.0);
+    // The run names its sensor as the flag does.
+    assert_eq!(run["config"]["sensor"], "sensor-ii");
     // The solver's bank is exact: its ranks are compared as they are; PlumeNet's are known
     // only within its factor, unless the flag says otherwise.
     assert_eq!(run["config"]["ste"]["model_rank_factor"], 1.0);
@@ -659,7 +674,7 @@ fn a_survey_log_replays_with_errors_and_the_mismatch_suite_runs() {
     assert_eq!(thinned["log_readings"], rep["samples"]);
     assert_eq!(thinned["baselines"], rep["baselines"]);
 
-    // The suite, and the suite with the walled wander in place of the issue's.
+    // The suite, and the suite with the walled wander in place of the whole-field wander.
     for walled in [false, true] {
         let dir = tmp.path().join(format!("suite-{walled}"));
         let mut args = vec![
@@ -968,4 +983,43 @@ fn bench_serve_loses_no_reading() {
     assert_eq!(report["load"]["errors"], 0);
     assert_eq!(report["load"]["round_trips_s"].as_array().unwrap().len(), 4);
     assert!(report["iterations"][0]["iteration_ms"].as_f64().unwrap() > 0.0);
+}
+
+/// `-h` shows what an ordinary user sets; `--help` adds every tuning knob under its own
+/// heading, each flag still accepted.
+#[test]
+fn short_help_is_for_users_and_long_help_holds_the_knobs() {
+    let flags = |text: &str| {
+        text.lines()
+            .filter(|l| l.trim_start().starts_with("--") || l.trim_start().starts_with("-h"))
+            .count()
+    };
+    for command in ["localize", "replay", "experiment", "serve"] {
+        let short = plumenet_ok(&[command, "-h"]);
+        let short = String::from_utf8_lossy(&short.stdout).to_string();
+        assert!(flags(&short) <= 16, "{command} -h: {short}");
+        assert!(short.contains("see more with '--help'"), "{short}");
+        let long = plumenet_ok(&[command, "--help"]);
+        let long = String::from_utf8_lossy(&long.stdout).to_string();
+        for heading in ["Plume model and bank:", "Likelihood tuning:"] {
+            assert!(long.contains(heading), "{command} --help lacks {heading}");
+        }
+        for knob in [
+            "--rank-tolerance",
+            "--background-rise",
+            "--wind-wander",
+            "--cache-dir",
+        ] {
+            assert!(!short.contains(knob), "{command} -h shows {knob}");
+            assert!(long.contains(knob), "{command} --help lacks {knob}");
+        }
+    }
+    let long = plumenet_ok(&["localize", "--help"]);
+    let long = String::from_utf8_lossy(&long.stdout).to_string();
+    for heading in [
+        "Robot and stopping rule:",
+        "Simulated reality (mismatch with the plume model):",
+    ] {
+        assert!(long.contains(heading), "localize --help lacks {heading}");
+    }
 }

@@ -416,9 +416,8 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
 /// wind_speed_posterior -- --nocapture` prints the shares. (The source sits on a candidate:
 /// with a coarse candidate grid a wider plume can make up for a source between candidates, and
 /// the speed is no longer told apart from the position.) Those shares hold with the lag in the
-/// concentration (the other features' form, rank's until stop 37); with rank's default lag in
-/// the sensor's response the marginal leans to a faster wind (the README's "The lag in the
-/// sensor's response"), and reality's speed only gets the largest mean share.
+/// concentration (the other features' form); with rank's default lag in the sensor's response
+/// the marginal leans to a faster wind, and reality's speed only gets the largest mean share.
 #[test]
 fn the_wind_speed_posterior_finds_realitys_speed() {
     use plumenet::plume::PhysicsSolver;
@@ -872,7 +871,7 @@ fn a_turned_bank_is_the_plume_under_a_turned_wind() {
 /// wind against a steady one gives the steady wind most of the mass in most runs when the
 /// wind holds its direction (0.96, 0.97 and 0.98 on seeds 0-2), and little of it in most runs
 /// when the reality's wind wanders by 30 degrees (0.51, 0.000, 0.000 on the same seeds; 0.02,
-/// 0.005, 0.000 with the lag in the concentration, rank's form until stop 37); runs report it,
+/// 0.005, 0.000 with the lag in the concentration, the other features' form); runs report it,
 /// and runs that do not weigh a wander report none.
 #[test]
 fn the_wander_posterior_tells_a_wandering_wind_from_a_steady_one() {

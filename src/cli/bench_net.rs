@@ -20,9 +20,8 @@ use plumenet::surrogate::conv::kernel::Isa;
 use plumenet::surrogate::model::ConvImpl;
 use plumenet::surrogate::{Surrogate, TrainingConfig};
 
-/// Samples in the dataset the README trains the shipped model on (300 layouts x 8 sources),
-/// for the epoch-time estimate.
-const README_SAMPLES: f64 = 2400.0;
+/// Samples of a 300-layout, 8-source dataset, for the epoch-time estimate.
+const EPOCH_SAMPLES: f64 = 2400.0;
 
 /// Flags of `bench-net`.
 #[derive(Debug, Args)]
@@ -289,11 +288,11 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
     let train_share = 1.0 - defaults.validation_fraction;
     let bank_s = |side: &Side| (n * model.views()) as f64 / median(side.bank.clone());
     let epoch_s = |side: &Side| {
-        README_SAMPLES * train_share / median(side.train.clone())
-            + README_SAMPLES * (1.0 - train_share) / median(side.bank.clone())
+        EPOCH_SAMPLES * train_share / median(side.train.clone())
+            + EPOCH_SAMPLES * (1.0 - train_share) / median(side.bank.clone())
     };
     println!(
-        "bank of {n} candidates: ours {:.1} s{}; one epoch of {README_SAMPLES} samples (estimated from the rates): ours {:.0} s{}",
+        "bank of {n} candidates: ours {:.1} s{}; one epoch of {EPOCH_SAMPLES} samples (estimated from the rates): ours {:.0} s{}",
         bank_s(&ours),
         if a.no_burn_conv {
             String::new()

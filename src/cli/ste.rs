@@ -14,6 +14,7 @@ use plumenet::report::belief::{BeliefPlot, belief_panel, write_episode_pictures}
 use plumenet::report::boxplot::{BoxPanel, group_values};
 
 use plumenet::report::{Panel, markdown_table, save_figure};
+use plumenet::ste::baseline::Guess;
 use plumenet::ste::compare;
 use plumenet::ste::experiment::{
     Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
@@ -40,22 +41,32 @@ pub struct PlumeArgs {
     #[arg(long, default_value = "models/default")]
     model: PathBuf,
     /// Candidate grid spacing (m).
-    #[arg(long, default_value_t = 0.25)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Plume model and bank",
+        default_value_t = 0.25
+    )]
     spacing: f64,
     /// Bank cache directory (banks are keyed by layout and model digest).
-    #[arg(long, default_value = "data/cache")]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Plume model and bank",
+        default_value = "data/cache"
+    )]
     cache_dir: PathBuf,
     /// Do not read or write the bank cache.
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Plume model and bank")]
     no_cache: bool,
     /// Model wind speeds to marginalise over, as factors of the layout's (one bank each, equally
     /// likely a priori), e.g. 0.5,1,2; the default 1 trusts the layout's speed.
-    #[arg(long, value_delimiter = ',', default_values_t = [1.0])]
+    #[arg(long, hide_short_help = true, help_heading = "Plume model and bank", value_delimiter = ',', default_values_t = [1.0])]
     wind_scales: Vec<f64>,
     /// Spreads of the wind's direction to marginalise over (degrees; each bank's plumes averaged
     /// over winds turned about the source, Gaussian with this standard deviation), e.g. 0,30;
     /// the default 0 trusts the layout's direction.
-    #[arg(long, value_delimiter = ',', default_values_t = [0.0])]
+    #[arg(long, hide_short_help = true, help_heading = "Plume model and bank", value_delimiter = ',', default_values_t = [0.0])]
     wind_spreads: Vec<f64>,
 }
 
@@ -114,73 +125,89 @@ impl PlumeArgs {
 #[derive(Debug, Args)]
 pub struct FeatureArgs {
     /// Model-error standard deviation sigma_E (default: the feature's tuned value).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     sigma_model: Option<f64>,
     /// Measurement-error standard deviation sigma_M (default: the feature's tuned value).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     sigma_measurement: Option<f64>,
     /// Threshold of the fixed-hit feature (reading units).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     fixed_threshold: Option<f64>,
     /// Smoothing factor of the adaptive-hit feature.
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     lambda: Option<f64>,
     /// Compare the plume model's values directly, without passing them through the sensor's
     /// response and recovery dynamics first (the paper's form).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     no_lag_model: bool,
     /// The exponent of the sensor's response in which its lag acts: the estimated
     /// concentrations are raised to it, lagged and taken back (default: for rank 1/|k| of the
     /// MiCS-5521's datasheet slope k = -1.58, about 0.633; for the other features 1, which
     /// lags the concentration itself).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     lag_exponent: Option<f64>,
     /// Estimated concentrations below this many ppm are set to zero, as the sensor cannot
     /// tell them from clean air (default: 0.2 for rank, 1 for the other features).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true
+    )]
     detection_floor: Option<f64>,
     /// Rank only: the factor within which the plume model's concentrations are trusted; the
     /// share of estimates within it adds to each rank's model error (1 turns it off).
-    #[arg(long, default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
     rank_tolerance: f64,
     /// Rank only: the factor within which the plume model's concentrations are known when
     /// ranked; each candidate's expected ranks under that uncertainty are compared (default:
     /// the model's own, 3 for PlumeNet and 1 for the solver; 1 compares exact ranks).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     model_rank_factor: Option<f64>,
     /// Rank only, with the background nuisance: the nuisance's estimates of the background
     /// alone that rank within the readings' clean-air tie group join that group, instead of
     /// being compared by their order in time (helps a rising background on surveys).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     clean_air_model_ties: bool,
     /// Rank only, with the background nuisance: in its slots every estimate that ranks within
     /// the readings' clean-air tie group joins that group, so the order of a candidate's
     /// faintest values, which the sensor cannot see, is not compared (helps surveys in unseen
     /// rooms, costs on the planner's paths).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     clean_air_rank_floor: bool,
     /// Rank only: follow a drifting clean-air baseline, taken in a centred window of this many
     /// seconds (default: one baseline for the whole run).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     clean_air_window: Option<f64>,
     /// Marginalise a background of recirculated gas rising during the run by 0, half or the
     /// whole of this many fully mixed concentrations q / (U H) (default: 0.5 for rank, 0 for
     /// the other features; 0 turns it off).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true
+    )]
     background_rise: Option<f64>,
     /// The time constant (s) of that background's rise, the room's air-exchange time.
-    #[arg(long, allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", allow_negative_numbers = true, default_value_t = SteParams::for_feature(Feature::Rank).background_time_s)]
     background_time: f64,
     /// Weigh a wind whose direction wanders during the run against a steady one: the prior
     /// standard deviation (degrees, at most 60) of its turn, fixed within each 20 s of
     /// readings (seven turned banks per bank; 0, the default, takes the wind as steady).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true,
+        default_value_t = 0.0
+    )]
     wind_wander: f64,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
     /// sensor's response with its lower floor (the other features' lag and floor instead);
     /// exactly invariant under every increasing transform of the readings.
-    #[arg(long, conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
     paper_rank: bool,
 }
 
@@ -188,7 +215,7 @@ impl FeatureArgs {
     /// The estimator settings for a feature in a world (whose plume model gives the default
     /// model rank factor) with these overrides.
     pub fn params(&self, feature: Feature, world: &World) -> SteParams {
-        let mut p = SteParams::for_feature(feature);
+        let mut p = world.ste_params(feature);
         let d = Sigmas::default_for(feature);
         p.sigmas = Sigmas {
             model: self.sigma_model.unwrap_or(d.model),
@@ -204,7 +231,9 @@ impl FeatureArgs {
             p.sensor_lag_s = None;
         }
         p.rank_tolerance = self.rank_tolerance;
-        p.model_rank_factor = self.model_rank_factor.unwrap_or(world.model_rank_factor);
+        if let Some(factor) = self.model_rank_factor {
+            p.model_rank_factor = factor;
+        }
         p.clean_air_window_s = self.clean_air_window;
         p.clean_air_model_ties = self.clean_air_model_ties;
         p.clean_air_rank_floor = self.clean_air_rank_floor;
@@ -284,24 +313,24 @@ impl From<PlannerArg> for PlannerKind {
 #[derive(Debug, Args)]
 pub struct RunArgs {
     /// Planner.
-    #[arg(long, value_enum, default_value_t = PlannerArg::BeliefClustering)]
+    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule", value_enum, default_value_t = PlannerArg::BeliefClustering)]
     planner: PlannerArg,
     /// Stop-sense-go sampling (a stop every metre, 10 s settle, 10 s average) instead of
     /// sense-in-motion.
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     stop_sense_go: bool,
     /// A noise-free sensor.
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     noise_free: bool,
     /// Iteration limit.
     #[arg(long, default_value_t = Termination::default().max_iterations)]
     max_iterations: usize,
     /// Entropy (nats) below which the run may stop (default: the tuned value).
-    #[arg(long)]
+    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     entropy_threshold: Option<f64>,
     /// Consecutive concentrated iterations, around the same estimate, needed to stop
     /// (1 = the paper's rule alone).
-    #[arg(long, default_value_t = Termination::default().stable_iterations)]
+    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = Termination::default().stable_iterations)]
     stable_iterations: usize,
 }
 
@@ -331,22 +360,50 @@ impl RunArgs {
 #[derive(Debug, Args)]
 pub struct RealityArgs {
     /// Reality's wind speed as a multiple of the layout's (the model keeps the layout's).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Simulated reality (mismatch with the plume model)",
+        allow_negative_numbers = true,
+        default_value_t = 1.0
+    )]
     reality_wind_scale: f64,
     /// Reality's diffusivity as a multiple of the layout's.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Simulated reality (mismatch with the plume model)",
+        allow_negative_numbers = true,
+        default_value_t = 1.0
+    )]
     reality_diffusivity_scale: f64,
     /// Wander of reality's wind direction: an Ornstein-Uhlenbeck angle with this standard
     /// deviation (degrees, at most 90) and a 20 s correlation time.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Simulated reality (mismatch with the plume model)",
+        allow_negative_numbers = true,
+        default_value_t = 0.0
+    )]
     reality_meander_deg: f64,
     /// The wander turns only the flow the room's walls let through (the turned wind projected
     /// onto flows that pass no wall or obstacle), not the whole field, walls included.
-    #[arg(long)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Simulated reality (mismatch with the plume model)"
+    )]
     reality_meander_walled: bool,
     /// Recirculated gas: a uniform background in free space of this many times the fully mixed
     /// concentration q / (U H), rising with a 60 s time constant.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Simulated reality (mismatch with the plume model)",
+        allow_negative_numbers = true,
+        default_value_t = 0.0
+    )]
     reality_background: f64,
 }
 
@@ -373,16 +430,32 @@ fn layout_name(path: &std::path::Path) -> String {
     )
 }
 
-/// Prints the baselines beside an estimate.
+/// Prints the baselines (survey: no estimate of its own).
 fn print_baselines(b: &Baselines) {
-    let show = |g: plumenet::ste::baseline::Guess| match g.error_m {
-        Some(e) => format!("({:.2}, {:.2}), error {e:.2} m", g.x, g.y),
-        None => format!("({:.2}, {:.2})", g.x, g.y),
+    print_guesses(None, b);
+}
+
+/// Prints an estimate, when there is one, with the two baselines under it, one per line, so
+/// that a reader sees what the estimator is compared with.
+fn print_guesses(estimate: Option<Guess>, b: &Baselines) {
+    let line = |name: &str, g: Guess, note: &str| {
+        let error = g
+            .error_m
+            .map_or(String::new(), |e| format!("error {e:5.2} m"));
+        println!("  {name:<16} ({:6.2}, {:5.2})  {error:<16}{note}", g.x, g.y);
     };
-    println!(
-        "baselines: highest reading {}; arena centre {}",
-        show(b.highest_reading),
-        show(b.centre)
+    if let Some(g) = estimate {
+        line("estimate", g, "the posterior's most probable cell");
+    }
+    line(
+        "highest reading",
+        b.highest_reading,
+        "baseline: where the sensor read the most",
+    );
+    line(
+        "arena centre",
+        b.centre,
+        "baseline: a guess without readings",
     );
 }
 
@@ -468,23 +541,32 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let keep_posteriors = a.png_dir.is_some() || a.html.is_some();
     let episode = run_episode(&world, &config, source, start, a.seed, keep_posteriors)?;
     println!(
-        "{} / {} / {}: estimate ({:.2}, {:.2}), error {:.2} m, {} iterations, {}, {} samples, {:.1} s",
+        "{} / {} / {}, source ({:.2}, {:.2}), start ({:.2}, {:.2}): {} after {} iterations, {} readings, {:.1} s",
         feature.name(),
         config.sensor.name(),
         model_name,
-        episode.estimate[0],
-        episode.estimate[1],
-        episode.error_m,
-        episode.iterations,
+        source[0],
+        source[1],
+        start[0],
+        start[1],
         if episode.converged {
             "converged"
         } else {
             "not converged"
         },
+        episode.iterations,
         episode.samples.len(),
         episode.wall_time_s
     );
-    print_baselines(&episode.baselines);
+    let estimate = Guess {
+        x: episode.estimate[0],
+        y: episode.estimate[1],
+        error_m: Some(episode.error_m),
+    };
+    print_guesses(Some(estimate), &episode.baselines);
+    println!(
+        "  (one run is one draw: `experiment` compares the estimate with both baselines over many runs)"
+    );
     if !mismatch.is_none() {
         println!("reality departed from the model: {mismatch}");
     }
@@ -612,16 +694,18 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
     let baselines = Baselines::new(&world.layout, &samples, source)?;
     println!(
-        "{} readings, {}: estimate ({:.2}, {:.2}){}, entropy {:.2} nats, fit {:.3}",
+        "{} readings, {}: entropy {:.2} nats, fit {:.3}",
         used.len(),
         feature.name(),
-        estimate[0],
-        estimate[1],
-        error_m.map_or(String::new(), |e| format!(", error {e:.2} m")),
         est.entropy(),
         est.fit().unwrap_or(f64::NAN)
     );
-    print_baselines(&baselines);
+    let guess = Guess {
+        x: estimate[0],
+        y: estimate[1],
+        error_m,
+    };
+    print_guesses(Some(guess), &baselines);
     if let Some(path) = &a.png {
         let title = format!(
             "replay  {}  estimate ({:.2}, {:.2})",
@@ -997,7 +1081,12 @@ pub struct ExperimentArgs {
     #[arg(long, value_enum, default_value_t = PathsArg::Planner)]
     paths: PathsArg,
     /// Lane spacing of the lawnmower survey (m).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Robot and stopping rule",
+        default_value_t = 0.5
+    )]
     survey_spacing: f64,
     /// Run the mismatch suite: reality as the model, each knob alone at a strong setting (wind
     /// x0.5, diffusivity x3, 30° meander, background 1), and all together

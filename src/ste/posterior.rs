@@ -2,100 +2,23 @@
 //! termination rule.
 //!
 //! For every candidate `theta_j` the estimated concentrations `c_i(theta_j)` at the sample
-//! positions come from the plume bank ([`FieldSampler`]), scaled by the sensor's known
-//! `ppm_per_unit` into ppm, the unit of a calibrated reading. Features `m_i` (readings) and
-//! `e_i(theta_j)` (estimates) come from [`FeatureTrack`]s, and the log-likelihood is the paper's
+//! positions come from the plume bank ([`FieldSampler`]) in ppm. Features `m_i` (readings) and
+//! `e_i(theta_j)` (estimates) come from [`FeatureTrack`]s, and the log-likelihood is
 //!
 //! ```text
-//! ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (e_i(theta_j) - m_i)^2 / (sigma_E^2 + sigma_M^2)
+//! ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (e_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i^2)
 //! ```
 //!
-//! By default the estimated series is first passed through the MOX sensor's first-order
-//! response and recovery (time constants 2.04 s and 4.57 s, properties of the sensor type, not
-//! of a calibration), so that a sensor still recovering after the robot left the plume is
-//! compared with a model that recovers too. This is our addition to the paper's method, for
-//! sense-in-motion; [`SteParams::sensor_lag_s`] = `None` turns it off. By default the lag
-//! acts on the concentration for the other features and, for rank, on the sensor's output.
-//! A sensor's lag acts on its output, which follows the gas as a power `1/|k|` of it (the
-//! sensor type's datasheet slope `k`), and with [`SteParams::sensor_lag_exponent`] = `1/|k|`
-//! each estimated series is raised to that power, lagged and taken back. Lagging the
-//! concentration itself overstates the response to a brief exposure (a pulse `c` for a time
-//! `T` lifts the output to `(1 - e^(-T/tau)) c^a`, the lagged concentration to
-//! `((1 - e^(-T/tau)) c)^a`, more for `a < 1`) and understates the recovery (`c^a` of an
-//! exponential decay falls with `tau / a`): a narrow plume crossed near its source reads lower
-//! than that model says, and the estimates of lawnmower surveys in the paper arena sit about a
-//! candidate downwind of the source. The response's exponent removes part of that offset. In
-//! unseen rooms it needs a lower detection floor beside it (the readings' clean-air band ends
-//! below the 1 ppm floor, and the response's faster recovery leaves the sensor's tail after
-//! each crossing unexplained), so rank's floor is 0.2 ppm, where Sensor II's clean-air tie
-//! band ends. Neither form models the plume's intermittency: toward a plume's edge the puffs
-//! come rarely but about as strong, so the mean reading there is nearly linear in the mean
-//! concentration. The pair became rank's default at stop 37, when with the shipped any-room
-//! model it helped on the held-out runs of every sensor and in most rows of the mismatch
-//! suite, costing nothing without mismatch (the README's "The lag in the sensor's response"
-//! has the figures); the other features keep the lag in the concentration and the 1 ppm
-//! floor ([`SteParams::lag_in_concentration`]).
-//!
-//! Estimated values below a detection floor (1 ppm; rank's 0.2 ppm) are then set to zero.
-//!
-//! For the rank feature further additions of ours use nothing but the readings themselves and
-//! the plume model, so the method stays calibration-free:
-//!
-//! - **Clean-air ties** ([`clean_air_ties`], on by default): readings within three noise
-//!   levels of the clean-air baseline form one tie group, as the model's values below the
-//!   floor do.
-//! - **Clean-air model ties** (an option, off by default,
-//!   [`SteParams::clean_air_model_ties`]): that group holds the lowest share `q` of the
-//!   readings, whose order the sensor cannot tell. With the background nuisance, an estimate
-//!   that is the background alone (the plume below the floor) and ranked below `q` joins that
-//!   group (its rank is raised to `q`), as the model's zeros do without a background. Without
-//!   it a rising background's first minutes, which lie within the readings' clean-air band,
-//!   are compared by an order in time that no reading shows, and on a survey the true source
-//!   with a background can lose to a plume from upwind.
-//! - **Clean-air rank floor** (an option, off by default,
-//!   [`SteParams::clean_air_rank_floor`]): in the background nuisance's slots every estimate
-//!   ranked below `q` joins the group, whatever its value, which includes the model ties.
-//!   It helps lawnmower surveys in unseen rooms and costs in the paper arena, on the planner's
-//!   paths most (the README's "Sim-to-real" has the figures).
-//! - **Rank tolerance** (on by default): the model's concentrations are trusted only up to a
-//!   factor `r` ([`SteParams::rank_tolerance`], 3 by default: plume-model error and, above
-//!   all, the intermittency of the real plume, whose readings scatter by such factors around
-//!   the mean field). A value whose rank would move by the share `w_i` of all estimates lying
-//!   within that factor of it ([`FeatureTrack::for_each_within`]) gets the model error `w_i`
-//!   on top of the constant ones.
-//! - **Expected model ranks** (for a surrogate's bank): the rank compared is the *expected*
-//!   rank `ê_i` of the value when every estimate is known only within a factor `r_e`
-//!   ([`SteParams::model_rank_factor`]; the plume model's own factor,
-//!   [`crate::plume::PlumeModel::rank_factor`], 3 for PlumeNet and 1, exact ranks, for the
-//!   solver): each other estimate within that factor counts as below it with a chance that
-//!   grows linearly in their log-ratio, from 0 at `r_e` times it to 1 at `1/r_e` times it.
-//! - **Background nuisance** (on by default, [`SteParams::background_rise`] 0.5): recirculated
-//!   gas may raise every estimate by a background rising in time, of unknown size among 0,
-//!   `A/2` and `A` fully mixed concentrations, marginalised in the posterior; without it a
-//!   rising background reads as a plume near wherever the robot was last.
-//!
-//! With the first three the likelihood becomes
-//!
-//! ```text
-//! ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (ê_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i(theta_j)^2)
-//! ```
-//!
-//! Where a candidate's plume is flat along the path (a well-mixed region far downwind), its
-//! exact ranks hang on small differences the real plume does not keep: those samples count
-//! little through `w_i`. Where it is steep (near the source, at the plume's edges) and where
-//! it predicts clean air (`w_i = 0`), they count fully. Without the tolerance, a robot that
-//! starts far downwind and reads the fluctuations of a well-mixed plume can pin the source on
-//! a spot near itself whose steep predicted gradient happens to fit those fluctuations. A
-//! surrogate's error there (PlumeNet's 20-30%) can even reverse the true source's predicted
-//! order, and the same failure returns; its expected ranks are then near 1/2, a prediction of
-//! "no order here", and the failure goes. They are not used with the solver's exact bank:
-//! there the flatter predictions they make cost accuracy under a mismatched reality and blur
-//! the nuisances' posteriors (the README's tuning section has the ablation).
-//!
-//! The sum runs over all `n` readings so far (the posterior is recomputed from the uniform
-//! prior and all data at every update, since rank features change with every new reading). The prior is
-//! uniform over candidates outside the inflated obstacles and the boundary band, zero
-//! elsewhere.
+//! over all `n` readings so far, recomputed from a uniform prior at every update (ranks change
+//! with every reading). The prior is zero inside the inflated obstacles and the boundary band.
+//! Before the features are taken, each estimated series passes through the sensor's response
+//! and recovery ([`SteParams::sensor_lag_s`], acting on the estimates raised to
+//! [`SteParams::sensor_lag_exponent`]) and values below [`SteParams::detection_floor_ppm`]
+//! become zero. For rank, `w_i` is the rank tolerance ([`SteParams::rank_tolerance`]), `e_i`
+//! the expected rank under the model's own uncertainty ([`SteParams::model_rank_factor`]),
+//! readings near clean air tie ([`clean_air_ties`]), and a rising background is marginalised
+//! ([`SteParams::background_rise`]); the paper's form is [`SteParams::papers_rank`].
+//! `docs/method.md` explains each term and the ablation behind it.
 
 use std::sync::Arc;
 
@@ -132,8 +55,8 @@ pub struct Sigmas {
 }
 
 impl Sigmas {
-    /// The defaults of a feature. They were tuned on training seeds only (see the README's
-    /// tuning section): value in ppm, the others on their `[0, 1]` scale.
+    /// The defaults of a feature. They were tuned on training seeds only
+    /// (`docs/method.md`): value in ppm, the others on their `[0, 1]` scale.
     pub fn default_for(feature: Feature) -> Self {
         let (model, measurement) = match feature {
             Feature::Value => (40.0, 40.0),
@@ -190,8 +113,8 @@ pub struct SteParams {
     /// clean-air tie group (below the group's rank `q`, its share of the readings) joins that
     /// group, its rank raised to `q`: the sensor cannot order those readings, so neither is
     /// the background's order among them compared. Off by default (and for records from
-    /// before this setting): it fixes a rising background on surveys but costs elsewhere (the
-    /// README's "Sim-to-real" has the figures).
+    /// before this setting): it fixes a rising background on surveys but costs elsewhere
+    /// (`docs/ablations.md`).
     #[serde(default)]
     pub clean_air_model_ties: bool,
     /// Rank only, with `clean_air_ties` and the background nuisance: in a background slot,
@@ -201,8 +124,8 @@ pub struct SteParams {
     /// of the readings, so the slot's lowest `q` of the estimates are not compared by their
     /// order either. The slot without a background is left as it is (flooring it too broke
     /// the planner's paths). Off by default (and for records from before this setting): it
-    /// helps surveys in unseen rooms and costs in the paper arena (the README's "Sim-to-real"
-    /// has the figures).
+    /// helps surveys in unseen rooms and costs in the paper arena
+    /// (`docs/ablations.md`).
     #[serde(default)]
     pub clean_air_rank_floor: bool,
     /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
@@ -305,7 +228,7 @@ impl SteParams {
     }
 
     /// The same settings with the sensor's lag in the concentration itself and the 1 ppm
-    /// detection floor: the other features' defaults, rank's until stop 37.
+    /// detection floor: the other features' defaults.
     pub fn lag_in_concentration(self) -> Self {
         Self {
             sensor_lag_exponent: concentration_lag(),
@@ -944,8 +867,7 @@ const RANK_DETECTION_FLOOR_PPM: f64 = 0.2;
 /// Rank's default background nuisance: a rise of up to half the fully mixed concentration
 /// (chosen on the mismatch suite: the smallest rise measured that fixes a rising background
 /// in the paper arena and in unseen rooms; without a background it costs nothing measurable
-/// with Sensor II and about 0.1 m with the calibrated sensor and Sensor I, README
-/// "Sim-to-real").
+/// with Sensor II and about 0.1 m with the calibrated sensor and Sensor I).
 const BACKGROUND_RISE: f64 = 0.5;
 
 /// The wander hypothesis's turns of the wind, in prior standard deviations (see
@@ -957,12 +879,12 @@ const WANDER_NODES: [f64; 7] = [0.0, -1.5, -1.0, -0.5, 0.5, 1.0, 1.5];
 pub const MAX_WANDER_DEG: f64 = 60.0;
 
 /// The length (s) of the wander's segments, within each of which its direction is taken as
-/// fixed: the correlation time of the wander the issue describes. Measured on 50 wandering
-/// runs: 10 s and 60 s segments did worse (README "Sim-to-real").
+/// fixed: the correlation time of the simulated reality's wander. On 50 wandering runs 10 s
+/// and 60 s segments did worse (`docs/ablations.md`).
 const WANDER_SEGMENT_S: f64 = 20.0;
 
 /// The prior probability that the wind is steady rather than wandering: halves, so that a
-/// steady reality keeps the steady bank's posterior (README "Sim-to-real").
+/// steady reality keeps the steady bank's posterior.
 const WANDER_STEADY: f64 = 0.5;
 
 /// Noise levels above the clean-air baseline below which readings tie.

@@ -119,6 +119,15 @@ impl World {
         ))
     }
 
+    /// The estimator's default settings for `feature` over this world's banks: the feature's
+    /// defaults ([`SteParams::for_feature`]) with the plume model's own rank factor.
+    pub fn ste_params(&self, feature: Feature) -> SteParams {
+        SteParams {
+            model_rank_factor: self.model_rank_factor,
+            ..SteParams::for_feature(feature)
+        }
+    }
+
     /// The same world with the estimator marginalising over the model's wind speed: one bank
     /// of `model` for each factor in `scales` (the layout's speed times the factor; 1 reuses
     /// the layout's own bank), each equally likely a priori. These banks replace the world's

@@ -35,6 +35,7 @@ pub enum SensorPreset {
     /// R0 = 100 kOhm, raw volts (the datasheet's low end: strong saturation).
     SensorI,
     /// R0 = 1500 kOhm, raw volts (the datasheet's high end).
+    #[serde(rename = "sensor-ii", alias = "sensor-i-i")]
     SensorII,
 }
 

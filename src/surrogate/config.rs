@@ -15,7 +15,7 @@ pub struct TrainingConfig {
     pub epochs: usize,
     /// Samples per batch.
     pub batch_size: usize,
-    /// Peak AdamW learning rate (DeepCFD: 1e-3; 3e-4 here, see the README's learning-rate test).
+    /// Peak AdamW learning rate (DeepCFD: 1e-3; 3e-4 here, `docs/plumenet.md`).
     pub learning_rate: f64,
     /// AdamW weight decay (DeepCFD: 0.005).
     pub weight_decay: f32,

@@ -58,7 +58,7 @@ pub enum InputSet {
     /// Wind plus a physical prior: the analytic plume of the source in uniform wind in an
     /// unbounded plane ([`point_source_unbounded`], cut off at a quarter cell from the source),
     /// transformed like the target; walls, obstacles, inlet and outlet are the network's to
-    /// learn. The default: it gave the lowest validation loss in the README's ablations.
+    /// learn. The default: it gave the lowest validation loss of the input sets (`docs/plumenet.md`).
     #[default]
     Analytic,
     /// As [`InputSet::Analytic`], but the prior is the plume between the room's two side walls

@@ -67,9 +67,17 @@ impl Surrogate {
         let retrain = "to cover it, generate a dataset of such rooms and train a model on it \
                        (plumenet generate --out D ...; plumenet train --data D --out models/NAME)";
         match (&self.saved.ranges, self.saved.grid) {
-            (Some(ranges), _) => ranges
-                .check(layout)
-                .map_err(|e| Error::Model(format!("model {}: {e}; {retrain}", self.dir.display()))),
+            (Some(ranges), _) => ranges.check(layout).map_err(|e| {
+                // The range check's own message, without a second "model:" prefix.
+                let reason = match e {
+                    Error::Model(reason) => reason,
+                    other => other.to_string(),
+                };
+                Error::Model(format!(
+                    "{} was not trained for this room: {reason}; {retrain}",
+                    self.dir.display()
+                ))
+            }),
             (None, grid) => {
                 let (ny, nx) = Frame::of(layout).canonical_shape();
                 if grid != Some([ny, nx]) || (layout.cell() - self.saved.cell_m).abs() > 1e-12 {
@@ -302,9 +310,9 @@ fn canonical_sources(frame: &Frame, sources: &[[f64; 2]]) -> Vec<[f64; 2]> {
 }
 
 /// The factor within which PlumeNet's concentrations are known when ranked: its relative
-/// error is about a quarter to a third of the field (README "PlumeNet"), more far downwind,
+/// error is about a fifth to a third of the field (`docs/plumenet.md`), more far downwind,
 /// where the plume is flat and a small error reverses the order of two cells. Chosen on the
-/// STE's tuning seeds (README "How the STE works").
+/// STE's tuning seeds (`docs/method.md`).
 pub const RANK_FACTOR: f64 = 3.0;
 
 impl PlumeModel for Surrogate {
