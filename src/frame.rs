@@ -21,7 +21,6 @@ use ndarray::{Array2, ArrayView2};
 
 use crate::error::{Error, Result};
 use crate::layout::{Layout, LayoutSpec, Obstacle, WindFrom};
-use crate::physics::wind::WindField;
 
 /// The rotation between a layout's arena and its canonical frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -114,6 +113,11 @@ impl Frame {
             WindFrom::South => (-vc, uc),
             WindFrom::North => (vc, -uc),
         }
+    }
+
+    /// Shape `[ny, nx]` of real cell arrays.
+    pub fn real_shape(&self) -> (usize, usize) {
+        (self.ny, self.nx)
     }
 
     /// Shape `[ny', nx']` of canonical cell arrays.
@@ -220,7 +224,7 @@ impl Frame {
     /// which canonical array (`false` for `u'`), its index, and the sign relating the two
     /// components. Faces: `u[j, i]` sits at `(i dx, (j + 1/2) dx)`, `v[j, i]` at
     /// `((i + 1/2) dx, j dx)`.
-    fn face_to_canonical(&self, v_face: bool, j: usize, i: usize) -> (bool, [usize; 2], f64) {
+    pub fn face_to_canonical(&self, v_face: bool, j: usize, i: usize) -> (bool, [usize; 2], f64) {
         let (nx, ny) = (self.nx, self.ny);
         match (self.from, v_face) {
             (WindFrom::West, _) => (v_face, [j, i], 1.0),
@@ -233,45 +237,6 @@ impl Frame {
             (WindFrom::North, false) => (true, [i, ny - 1 - j], 1.0),
             (WindFrom::North, true) => (false, [i, ny - j], -1.0),
         }
-    }
-
-    /// The real wind field of a field solved in the canonical frame.
-    pub fn wind_from_canonical(&self, c: &WindField) -> WindField {
-        if self.is_identity() {
-            return c.clone();
-        }
-        let (nx, ny) = (self.nx, self.ny);
-        let pick = |v_face: bool, j: usize, i: usize| {
-            let (to_v, idx, sign) = self.face_to_canonical(v_face, j, i);
-            sign * if to_v { c.v[idx] } else { c.u[idx] }
-        };
-        WindField {
-            u: Array2::from_shape_fn((ny, nx + 1), |(j, i)| pick(false, j, i)),
-            v: Array2::from_shape_fn((ny + 1, nx), |(j, i)| pick(true, j, i)),
-            ..c.clone()
-        }
-    }
-
-    /// The canonical wind field of a real one (the inverse of
-    /// [`Frame::wind_from_canonical`]: every canonical face is the image of one real face).
-    pub fn wind_to_canonical(&self, real: &WindField) -> WindField {
-        if self.is_identity() {
-            return real.clone();
-        }
-        let (nyc, nxc) = self.canonical_shape();
-        let mut out = WindField {
-            u: Array2::zeros((nyc, nxc + 1)),
-            v: Array2::zeros((nyc + 1, nxc)),
-            ..real.clone()
-        };
-        for (v_face, array) in [(false, &real.u), (true, &real.v)] {
-            for ((j, i), &value) in array.indexed_iter() {
-                let (to_v, idx, sign) = self.face_to_canonical(v_face, j, i);
-                let target = if to_v { &mut out.v } else { &mut out.u };
-                target[idx] = sign * value;
-            }
-        }
-        out
     }
 }
 

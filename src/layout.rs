@@ -16,7 +16,6 @@ use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::frame::Frame;
 use crate::io;
 
 /// Default effective (turbulent) diffusivity of the gas in m^2/s.
@@ -249,24 +248,28 @@ fn cell_centre(cell: f64, i: usize, j: usize) -> (f64, f64) {
     ((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell)
 }
 
-/// Every free cell must be reachable from a free inlet cell, and some free outlet cell must be
-/// (checked in the canonical frame, where the inlet is the first column).
-fn check_connectivity(real: &Array2<bool>, cell: f64, from: WindFrom) -> Result<()> {
-    let (ny_real, nx_real) = real.dim();
-    let frame = Frame::new(
-        from,
-        [nx_real as f64 * cell, ny_real as f64 * cell],
-        [nx_real, ny_real],
-    );
-    let solid = frame.cells_to_canonical(real.view());
+/// Every free cell must be reachable from a free inlet cell, and some free outlet cell must be.
+fn check_connectivity(solid: &Array2<bool>, cell: f64, from: WindFrom) -> Result<()> {
     let (ny, nx) = solid.dim();
+    // The cells along the inlet wall and along the outlet wall opposite it.
+    let wall = |west_or_south: bool, along_x: bool| -> Vec<(usize, usize)> {
+        match (along_x, west_or_south) {
+            (false, true) => (0..ny).map(|j| (j, 0)).collect(),
+            (false, false) => (0..ny).map(|j| (j, nx - 1)).collect(),
+            (true, true) => (0..nx).map(|i| (0, i)).collect(),
+            (true, false) => (0..nx).map(|i| (ny - 1, i)).collect(),
+        }
+    };
+    let (inlet, outlet) = match from {
+        WindFrom::West => (wall(true, false), wall(false, false)),
+        WindFrom::East => (wall(false, false), wall(true, false)),
+        WindFrom::South => (wall(true, true), wall(false, true)),
+        WindFrom::North => (wall(false, true), wall(true, true)),
+    };
     let mut seen = Array2::from_elem((ny, nx), false);
-    let mut queue: VecDeque<(usize, usize)> = (0..ny)
-        .filter(|&j| !solid[[j, 0]])
-        .map(|j| (j, 0))
-        .collect();
-    for &(j, i) in &queue {
-        seen[[j, i]] = true;
+    let mut queue: VecDeque<(usize, usize)> = inlet.into_iter().filter(|&c| !solid[c]).collect();
+    for &c in &queue {
+        seen[c] = true;
     }
     while let Some((j, i)) = queue.pop_front() {
         let neighbours = [
@@ -282,7 +285,7 @@ fn check_connectivity(real: &Array2<bool>, cell: f64, from: WindFrom) -> Result<
             }
         }
     }
-    if !(0..ny).any(|j| seen[[j, nx - 1]]) {
+    if !outlet.into_iter().any(|c| seen[c]) {
         return Err(Error::Layout(format!(
             "obstacles block the channel: no free path from the inlet (the {} wall) to the outlet",
             from.name()
@@ -292,8 +295,7 @@ fn check_connectivity(real: &Array2<bool>, cell: f64, from: WindFrom) -> Result<
         .indexed_iter()
         .find(|&((j, i), &s)| !s && !seen[[j, i]])
     {
-        let (xc, yc) = cell_centre(cell, i, j);
-        let (x, y) = frame.from_canonical(xc, yc);
+        let (x, y) = cell_centre(cell, i, j);
         return Err(Error::Layout(format!(
             "the free cell at ({x}, {y}) is enclosed by obstacles; \
              no air or gas can reach it (extend an obstacle to fill the pocket)"

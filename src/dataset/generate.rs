@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use super::GENERATOR_VERSION;
 use super::manifest::{Arrays, Distribution, GenerateParams, Manifest, ShardInfo};
 use super::rooms::random_room;
+use super::snap::{SNAP_M, snapped};
 use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::{Layout, LayoutSpec, Obstacle};
@@ -18,9 +19,6 @@ use crate::physics::wind::WindField;
 
 /// Give up drawing a layout (or a source) after this many rejected attempts.
 const MAX_ATTEMPTS: usize = 10_000;
-/// Obstacle corners and sizes are multiples of this (m), so that candidate source points
-/// (centres of the 0.25 m grid) never lie on an obstacle edge.
-pub(super) const SNAP_M: f64 = 0.25;
 
 /// One shard `index` of `count` (`--shard K/N`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -89,14 +87,6 @@ impl GenerateConfig {
             }
         }
     }
-}
-
-/// A multiple of [`SNAP_M`] in `[lo, hi]`, uniformly (`lo` rounded up to a multiple when the
-/// range holds none).
-pub(super) fn snapped(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    let lo = (lo / SNAP_M).ceil() * SNAP_M;
-    let steps = ((hi - lo) / SNAP_M + 1e-9).floor().max(0.0) as u32;
-    lo + SNAP_M * f64::from(rng.random_range(0..=steps))
 }
 
 /// Draws a random valid layout: 1 to `max_obstacles` rectangles of varied sizes, some touching

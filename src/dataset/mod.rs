@@ -32,6 +32,7 @@
 mod generate;
 mod manifest;
 mod rooms;
+mod snap;
 
 pub use generate::{GenerateConfig, Shard, generate, random_layout};
 pub use manifest::{

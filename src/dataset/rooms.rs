@@ -16,7 +16,7 @@ use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::generate::{SNAP_M, snapped};
+use super::snap::{SNAP_M, snapped};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::{Layout, LayoutSpec, Obstacle, Wind, WindFrom};

@@ -187,10 +187,10 @@ impl FilamentPlume {
         }
         let frame = Frame::of(layout);
         let canonical = frame.layout_to_canonical(layout)?;
-        let wind = frame.wind_to_canonical(wind);
+        let wind = wind.to_canonical(&frame);
         let crosswind = match (config.meander_walled && config.meander_deg > 0.0, crosswind) {
             (false, _) => None,
-            (true, Some(c)) => Some(frame.wind_to_canonical(c)),
+            (true, Some(c)) => Some(c.to_canonical(&frame)),
             (true, None) => Some(wind.crosswind(&canonical)?),
         };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);

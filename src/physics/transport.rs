@@ -87,7 +87,7 @@ impl Transport {
         }
         let frame = Frame::of(real);
         let layout = frame.layout_to_canonical(real)?;
-        let wind = &frame.wind_to_canonical(real_wind);
+        let wind = &real_wind.to_canonical(&frame);
         let (ny, nx) = layout.shape();
         let (index, n) = layout.free_cell_index();
         let h = layout.cell();

@@ -305,6 +305,49 @@ fn sweep(
 }
 
 impl WindField {
+    /// The real wind field of a field `canonical` solved in `frame`'s canonical frame.
+    pub fn from_canonical(frame: &Frame, canonical: &WindField) -> WindField {
+        if frame.is_identity() {
+            return canonical.clone();
+        }
+        let (ny, nx) = frame.real_shape();
+        let pick = |v_face: bool, j: usize, i: usize| {
+            let (to_v, idx, sign) = frame.face_to_canonical(v_face, j, i);
+            sign * if to_v {
+                canonical.v[idx]
+            } else {
+                canonical.u[idx]
+            }
+        };
+        WindField {
+            u: Array2::from_shape_fn((ny, nx + 1), |(j, i)| pick(false, j, i)),
+            v: Array2::from_shape_fn((ny + 1, nx), |(j, i)| pick(true, j, i)),
+            ..canonical.clone()
+        }
+    }
+
+    /// This real wind field in `frame`'s canonical frame (the inverse of
+    /// [`WindField::from_canonical`]: every canonical face is the image of one real face).
+    pub fn to_canonical(&self, frame: &Frame) -> WindField {
+        if frame.is_identity() {
+            return self.clone();
+        }
+        let (nyc, nxc) = frame.canonical_shape();
+        let mut out = WindField {
+            u: Array2::zeros((nyc, nxc + 1)),
+            v: Array2::zeros((nyc + 1, nxc)),
+            ..self.clone()
+        };
+        for (v_face, array) in [(false, &self.u), (true, &self.v)] {
+            for ((j, i), &value) in array.indexed_iter() {
+                let (to_v, idx, sign) = frame.face_to_canonical(v_face, j, i);
+                let target = if to_v { &mut out.v } else { &mut out.u };
+                target[idx] = sign * value;
+            }
+        }
+        out
+    }
+
     /// Solves the steady wind of a layout with the default settings.
     ///
     /// # Errors
@@ -322,7 +365,7 @@ impl WindField {
         let frame = Frame::of(layout);
         if !frame.is_identity() {
             let canonical = Self::solve_with(&frame.layout_to_canonical(layout)?, config)?;
-            return Ok(frame.wind_from_canonical(&canonical));
+            return Ok(Self::from_canonical(&frame, &canonical));
         }
         if !(config.tolerance > 0.0 && config.courant > 0.0) {
             return Err(Error::Parameter(format!(
@@ -443,10 +486,10 @@ impl WindField {
     pub fn crosswind(&self, layout: &Layout) -> Result<Self> {
         let frame = Frame::of(layout);
         if !frame.is_identity() {
-            let canonical = frame
-                .wind_to_canonical(self)
+            let canonical = self
+                .to_canonical(&frame)
                 .crosswind(&frame.layout_to_canonical(layout)?)?;
-            return Ok(frame.wind_from_canonical(&canonical));
+            return Ok(Self::from_canonical(&frame, &canonical));
         }
         let mac = Mac::new(layout)?;
         let h = self.cell;
