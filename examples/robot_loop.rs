@@ -12,8 +12,8 @@
 //! your robot's motion and sensor; the session never sees the true source.
 
 use plumenet::{
-    Feature, Layout, MoxSensor, Sample, SensorPreset, Session, SessionConfig, Surrogate, Transport,
-    World,
+    Feature, Layout, MoxSensor, RoomBanks, Sample, SensorPreset, Session, SessionConfig, Surrogate,
+    Transport, WindField,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -67,12 +67,12 @@ fn main() -> plumenet::Result<()> {
     // Candidate sources every 0.25 m, as on the command line (a coarser grid leaves the leak
     // between candidates, and a wrong plume can fit better than the nearest one); the bank is
     // PlumeNet's, one predicted field per candidate.
-    let (world, _) = World::build(room.clone(), &model, 0.25, None)?;
+    let (banks, _) = RoomBanks::build(room.clone(), &model, 0.25, None)?;
     let config = SessionConfig {
-        ste: world.ste_params(Feature::Rank),
+        ste: banks.ste_params(Feature::Rank),
         ..plumenet::EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).session(0)
     };
-    let mut session = Session::new(&world, config)?;
+    let mut session = Session::new(&banks, config)?;
 
     let leak = [4.5, 2.5];
     let mut robot = ToyRobot {
@@ -80,7 +80,7 @@ fn main() -> plumenet::Result<()> {
         t: 0.0,
         sensor: MoxSensor::preset(SensorPreset::SensorII, true)?,
         rng: ChaCha8Rng::seed_from_u64(7),
-        plume: Transport::new(&room, &world.wind)?.solve(leak[0], leak[1])?,
+        plume: Transport::new(&room, &WindField::solve(&room)?)?.solve(leak[0], leak[1])?,
         room,
     };
     // The sensor settles where the robot stands before the search starts.

@@ -20,12 +20,12 @@ use crate::layout::Layout;
 use crate::physics::transport::Transport;
 use crate::physics::wind::WindField;
 use crate::service::{RemoteSession, serve_tcp};
+use crate::sim::episode::Steering;
+use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::posterior::prior_support;
 use crate::ste::protocol::{NoJournal, Protocol};
-use crate::ste::run::PRIOR_BAND_M;
-use crate::ste::run::Steering;
 use crate::ste::session::{Session, SessionConfig};
-use crate::ste::{Estimator, Sample, SteParams, World};
+use crate::ste::{Estimator, Sample, SteParams};
 
 /// Median timings (seconds) of the physics bank on one layout.
 #[derive(Debug, Clone, PartialEq)]
@@ -70,7 +70,7 @@ fn timed<T>(f: impl FnOnce() -> Result<T>) -> Result<(T, f64)> {
 /// transport operator and candidates for export.
 ///
 /// # Errors
-/// Solver errors of the wind or transport solve; [`crate::Error::Parameter`] for a bad spacing.
+/// Solver errors of the wind or transport solve; [`crate::error::Error::Parameter`] for a bad spacing.
 pub fn time_bank(
     layout: &Layout,
     spacing_m: f64,
@@ -94,7 +94,7 @@ pub fn time_bank(
         bank_t.push(timed(|| transport.bank(&candidates))?.1);
         last = Some(transport);
     }
-    let transport = last.ok_or_else(|| crate::Error::Solver("no benchmark run".into()))?;
+    let transport = last.ok_or_else(|| crate::error::Error::Solver("no benchmark run".into()))?;
     let timings = BankTimings {
         wind_s: median(wind_t),
         factor_s: median(factor_t),
@@ -111,7 +111,7 @@ pub fn time_bank(
 /// plumenet's own solution (`plumenet_bank.npy`, unknowns x candidates) into `dir`.
 ///
 /// # Errors
-/// [`crate::Error::Source`] for a bad candidate, [`crate::Error::Io`] on write failure.
+/// [`crate::error::Error::Source`] for a bad candidate, [`crate::error::Error::Io`] on write failure.
 pub fn export_system(transport: &Transport, candidates: &[[f64; 2]], dir: &Path) -> Result<()> {
     io::create_dir_all(dir)?;
     let (mut rows, mut cols, mut vals) = (vec![], vec![], vec![]);
@@ -166,9 +166,9 @@ pub struct SteTimings {
 /// of the `N x total` estimate matrix once.
 ///
 /// # Errors
-/// [`crate::Error::Parameter`] for `batch` not below `total`, and the estimator's errors.
+/// [`crate::error::Error::Parameter`] for `batch` not below `total`, and the estimator's errors.
 pub fn time_ste_update(
-    world: &World,
+    room: &RoomBanks,
     params: SteParams,
     total: usize,
     batch: usize,
@@ -176,25 +176,20 @@ pub fn time_ste_update(
 ) -> Result<SteTimings> {
     let repeats = repeats.max(1);
     if batch == 0 || batch * repeats >= total {
-        return Err(crate::Error::Parameter(format!(
+        return Err(crate::error::Error::Parameter(format!(
             "{repeats} updates of {batch} readings must stay below the total {total}"
         )));
     }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
-        .map_err(|e| crate::Error::Parameter(format!("cannot build a thread pool: {e}")))?;
-    let samples = synthetic_readings(&world.layout, total, 0.1, 0);
-    let support = prior_support(
-        &world.layout,
-        world.sampler.candidates(),
-        0.07,
-        PRIOR_BAND_M,
-    )?;
-    let mut est = Estimator::with_banks(world.samplers(), &support, params)?;
+        .map_err(|e| crate::error::Error::Parameter(format!("cannot build a thread pool: {e}")))?;
+    let samples = synthetic_readings(&room.layout, total, 0.1, 0);
+    let support = prior_support(&room.layout, room.sampler.candidates(), 0.07, PRIOR_BAND_M)?;
+    let mut est = Estimator::with_banks(room.samplers(), &support, params)?;
     let first = total - batch * repeats;
     est.update(&samples[..first])?;
-    let n_cand = world.sampler.len();
+    let n_cand = room.sampler.len();
     let matrix: Vec<f32> = (0..n_cand * total)
         .map(|k| (k % 97) as f32 * 0.01)
         .collect();
@@ -254,20 +249,20 @@ pub fn synthetic_readings(layout: &Layout, count: usize, dt_s: f64, seed: u64) -
 /// `total - batch`, then planning), on all cores.
 ///
 /// # Errors
-/// [`crate::Error::Parameter`] for `batch` not below `total`, and the session's errors.
+/// [`crate::error::Error::Parameter`] for `batch` not below `total`, and the session's errors.
 pub fn time_session_iteration(
-    world: &World,
+    room: &RoomBanks,
     config: SessionConfig,
     total: usize,
     batch: usize,
 ) -> Result<f64> {
     if batch == 0 || batch >= total {
-        return Err(crate::Error::Parameter(format!(
+        return Err(crate::error::Error::Parameter(format!(
             "an iteration of {batch} readings must stay below the total {total}"
         )));
     }
-    let readings = synthetic_readings(&world.layout, total, 0.1, 1);
-    let mut session = Session::new(world, config)?;
+    let readings = synthetic_readings(&room.layout, total, 0.1, 1);
+    let mut session = Session::new(room, config)?;
     session.add_readings(&readings[..total - batch])?;
     session.iterate(None)?;
     session.add_readings(&readings[total - batch..])?;
@@ -309,13 +304,13 @@ pub fn resident_bytes() -> Option<u64> {
 /// # Errors
 /// When the server cannot be started or reached.
 pub fn serve_load(
-    world: &World,
+    room: &RoomBanks,
     config: SessionConfig,
     rate_hz: usize,
     seconds: usize,
     iterate_every: usize,
 ) -> Result<LoadReport> {
-    let session = Session::new(world, config)?;
+    let session = Session::new(room, config)?;
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
         let mut protocol = Protocol::new(session, "bench", "bench");
@@ -325,9 +320,9 @@ pub fn serve_load(
     });
     let at = rx
         .recv()
-        .map_err(|_| crate::Error::Parameter("the server did not start".into()))?;
+        .map_err(|_| crate::error::Error::Parameter("the server did not start".into()))?;
     let mut client = RemoteSession::connect(at)?;
-    let readings = synthetic_readings(&world.layout, rate_hz * seconds, 1.0 / rate_hz as f64, 2);
+    let readings = synthetic_readings(&room.layout, rate_hz * seconds, 1.0 / rate_hz as f64, 2);
     let clock = Instant::now();
     let (mut accepted, mut errors) = (0, 0);
     let mut round_trips_s = Vec::new();

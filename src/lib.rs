@@ -52,8 +52,9 @@
 //! Modules, from the ground up: [`layout`] (rooms, obstacles, validation), [`frame`] (the room
 //! turned so that the wind comes from the west), [`physics`] (wind, transport, filament plume,
 //! analytic reference), [`dataset`] (generated maps), [`surrogate`] (PlumeNet),
-//! [`plume`] (the plume-model trait and the bank cache), [`ste`] (sensor, features,
-//! posterior, planner, sessions, simulated runs and studies), [`report`] and [`viewer`]
+//! [`plume`] (the plume-model trait and the bank cache), [`ste`] (the estimator: sensor,
+//! features, posterior, planner, sessions), [`sim`] (the simulated reality and runs that test
+//! it), [`study`] (studies over many runs), [`report`] and [`viewer`]
 //! (figures and the HTML run viewer), [`service`] and [`ros`] (serving a session to a robot),
 //! [`io`] (atomic files), [`stats`]; `docs/` in the repository explains the method.
 
@@ -70,8 +71,10 @@ pub mod plume;
 pub mod report;
 pub mod ros;
 pub mod service;
+pub mod sim;
 pub mod stats;
 pub mod ste;
+pub mod study;
 pub mod surrogate;
 pub mod viewer;
 
@@ -81,9 +84,9 @@ pub use layout::Layout;
 pub use physics::transport::Transport;
 pub use physics::wind::WindField;
 pub use plume::{PhysicsSolver, PlumeBank, PlumeModel};
-pub use ste::session::{Iteration, Session, SessionConfig};
+pub use sim::{Episode, EpisodeConfig, Mismatch, World, run_episode};
 pub use ste::{
-    Baselines, Episode, EpisodeConfig, Estimator, Feature, Mismatch, MoxSensor, Sample,
-    SensorPreset, SteParams, World, run_episode,
+    Baselines, Estimator, Feature, Iteration, MoxSensor, RoomBanks, Sample, SensorPreset, Session,
+    SessionConfig, SteParams,
 };
 pub use surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train};

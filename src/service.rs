@@ -15,9 +15,9 @@ use std::net::{TcpListener, TcpStream, ToSocketAddrs};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::sim::episode::Steering;
 use crate::ste::posterior::Sample;
 use crate::ste::protocol::{Journal, Protocol};
-use crate::ste::run::Steering;
 use crate::ste::session::Iteration;
 
 /// The state file of a session.
@@ -203,7 +203,7 @@ pub fn serve_tcp(
 }
 
 /// The client side of the protocol: a session behind `plumenet serve --listen`, steering a
-/// robot (see [`crate::ste::run::Steering`]).
+/// robot (see [`crate::sim::episode::Steering`]).
 #[derive(Debug)]
 pub struct RemoteSession {
     reader: BufReader<TcpStream>,

@@ -16,10 +16,10 @@ use serde_json::json;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::Layout;
+use crate::sim::episode::{Episode, IterationRecord};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::posterior::{Sample, SteParams};
 use crate::ste::replay::ReplayStep;
-use crate::ste::run::{Episode, IterationRecord};
 
 /// The most readings drawn per iteration; longer runs show every k-th.
 pub const MAX_READINGS_SHOWN: usize = 2000;

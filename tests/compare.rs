@@ -3,8 +3,8 @@
 
 use plumenet::Error;
 use plumenet::stats::{paired_difference, sign_test};
-use plumenet::ste::compare::{compare, compare_table, load_runs};
-use plumenet::ste::experiment::RunRow;
+use plumenet::study::compare::{compare, compare_table, load_runs};
+use plumenet::study::experiment::RunRow;
 
 use crate::common::{assert_clean_failure, plumenet, plumenet_ok};
 

@@ -8,7 +8,8 @@ use plumenet::physics::filament::{FilamentConfig, FilamentPlume};
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 use plumenet::plume::PhysicsSolver;
-use plumenet::ste::{EpisodeConfig, Feature, SensorPreset, World, run_episode};
+use plumenet::sim::{EpisodeConfig, World, run_episode};
+use plumenet::ste::{Feature, SensorPreset};
 use plumenet::surrogate::Surrogate;
 
 use crate::common::{repo_path, wind_tunnel};

@@ -4,12 +4,11 @@
 
 use plumenet::physics::filament::{FilamentConfig, FilamentPlume};
 use plumenet::physics::wind::WindField;
+use plumenet::sim::survey::{fly, lawnmower};
+use plumenet::sim::{EpisodeConfig, Mismatch, Reality};
 use plumenet::ste::posterior::Sample;
 use plumenet::ste::robot::Occupancy;
-use plumenet::ste::survey::{fly, lawnmower};
-use plumenet::ste::{
-    Baselines, EpisodeConfig, Feature, Mismatch, Reality, SensorPreset, SteParams,
-};
+use plumenet::ste::{Baselines, Feature, SensorPreset, SteParams};
 
 use crate::common::{empty_tunnel, wind_tunnel};
 
@@ -276,9 +275,9 @@ fn a_survey_reads_every_tick_along_its_path() {
 /// flown and replayed by hand, and every row's baselines agree with its readings.
 #[test]
 fn survey_studies_replay_the_flown_survey_and_carry_the_baselines() {
-    use plumenet::ste::experiment::{Paths, StudySite, plan_runs, run_study, summarize};
+    use plumenet::sim::episode::StartRule;
     use plumenet::ste::replay::replay;
-    use plumenet::ste::run::StartRule;
+    use plumenet::study::experiment::{Paths, StudySite, plan_runs, run_study, summarize};
     let world = crate::ste::world();
     let meander = world
         .with_mismatch(Mismatch {
@@ -287,7 +286,7 @@ fn survey_studies_replay_the_flown_survey_and_carry_the_baselines() {
         })
         .unwrap();
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let survey = lawnmower(&world.room.layout, &config.robot, 1.0).unwrap();
     let plan = plan_runs(&[Feature::Rank], &[SensorPreset::SensorII], 2);
     let study = |w, paths| {
         let site = StudySite {
@@ -312,14 +311,14 @@ fn survey_studies_replay_the_flown_survey_and_carry_the_baselines() {
         let flight = config.flight();
         let samples = fly(&meander.reality, &survey.path, source, &flight, s.seed).unwrap();
         let est = replay(
-            meander.samplers(),
+            meander.room.samplers(),
             config.ste,
             config.robot.radius_m,
             &samples,
         )
         .unwrap();
         assert_eq!([s.estimate_x, s.estimate_y], est.estimate());
-        let b = Baselines::new(&world.layout, &samples, Some(source)).unwrap();
+        let b = Baselines::new(&world.room.layout, &samples, Some(source)).unwrap();
         assert_eq!(
             [s.highest_x, s.highest_y],
             [b.highest_reading.x, b.highest_reading.y]
@@ -352,7 +351,7 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
         .with_wind_scales(&PhysicsSolver, &[0.5, 1.0], None)
         .unwrap();
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let survey = lawnmower(&world.layout, &config.robot, 1.5).unwrap();
+    let survey = lawnmower(&world.room.layout, &config.robot, 1.5).unwrap();
     let samples = fly(
         &world.reality,
         &survey.path,
@@ -362,9 +361,9 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
     )
     .unwrap();
     let r = config.robot.radius_m;
-    let single = replay(vec![world.sampler.clone()], config.ste, r, &samples).unwrap();
+    let single = replay(vec![world.room.sampler.clone()], config.ste, r, &samples).unwrap();
     let twice = replay(
-        vec![world.sampler.clone(), world.sampler.clone()],
+        vec![world.room.sampler.clone(), world.room.sampler.clone()],
         config.ste,
         r,
         &samples,
@@ -379,8 +378,9 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
             .iter()
             .all(|p| (p - 0.5).abs() < 1e-12)
     );
-    let both = replay(slow.samplers(), config.ste, r, &samples).unwrap();
+    let both = replay(slow.room.samplers(), config.ste, r, &samples).unwrap();
     let parts: Vec<Estimator> = slow
+        .room
         .samplers()
         .into_iter()
         .map(|s| replay(vec![s], config.ste, r, &samples).unwrap())
@@ -399,7 +399,8 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
         );
     }
     // Banks over other candidates, or none at all, are refused.
-    let support = prior_support(&world.layout, world.sampler.candidates(), r, 0.25).unwrap();
+    let support =
+        prior_support(&world.room.layout, world.room.sampler.candidates(), r, 0.25).unwrap();
     assert!(Estimator::with_banks(vec![], &support, config.ste).is_err());
     assert!(
         world
@@ -427,7 +428,7 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
         .with_wind_scales(&PhysicsSolver, &scales, None)
         .unwrap();
     let source = [4.625, 2.375];
-    assert!(world.sampler.candidates().contains(&source));
+    assert!(world.room.sampler.candidates().contains(&source));
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     assert_eq!(config.ste.background_rise, 0.5);
     let lag_in_c = config.ste.lag_in_concentration();
@@ -446,7 +447,7 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
         (alone(config.ste), None),
         (config.ste, None),
     ];
-    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let survey = lawnmower(&world.room.layout, &config.robot, 1.0).unwrap();
     let seeds = 1..=8u64;
     for (k, &scale) in scales.iter().enumerate() {
         let reality = world
@@ -467,7 +468,8 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
             )
             .unwrap();
             for (m, (ste, _)) in mean.iter_mut().zip(forms) {
-                let est = replay(world.samplers(), ste, config.robot.radius_m, &samples).unwrap();
+                let est =
+                    replay(world.room.samplers(), ste, config.robot.radius_m, &samples).unwrap();
                 let w = est.bank_posterior();
                 eprintln!(
                     "reality at x{scale}, seed {seed}, background rise {}, lag exponent {:.3}: {w:.2?}",
@@ -501,14 +503,14 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
 fn the_background_posterior_tells_a_rising_background_from_none() {
     use plumenet::ste::replay::replay;
     let world = crate::ste::world();
-    assert!((world.layout.fully_mixed(1.0) - 1.0 / (0.75 * 4.0)).abs() < 1e-15);
-    let mut spec = world.layout.spec().clone();
+    assert!((world.room.layout.fully_mixed(1.0) - 1.0 / (0.75 * 4.0)).abs() < 1e-15);
+    let mut spec = world.room.layout.spec().clone();
     spec.wind.from = plumenet::layout::WindFrom::South;
     let south = spec.check().unwrap();
     assert!((south.fully_mixed(3.0) - 3.0 / (0.75 * 18.0)).abs() < 1e-15);
 
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let survey = lawnmower(&world.room.layout, &config.robot, 1.0).unwrap();
     let source = [4.625, 2.375];
     let mut ste = SteParams {
         background_rise: 0.0,
@@ -516,13 +518,13 @@ fn the_background_posterior_tells_a_rising_background_from_none() {
     };
     let r = config.robot.radius_m;
     let samples = fly(&world.reality, &survey.path, source, &config.flight(), 3).unwrap();
-    let plain = replay(world.samplers(), ste, r, &samples).unwrap();
+    let plain = replay(world.room.samplers(), ste, r, &samples).unwrap();
     assert!(matches!(plain.backgrounds()[..], [[a, p]] if a == 0.0 && (p - 1.0).abs() < 1e-12));
-    let default = replay(world.samplers(), config.ste, r, &samples).unwrap();
+    let default = replay(world.room.samplers(), config.ste, r, &samples).unwrap();
     let levels: Vec<f64> = default.backgrounds().iter().map(|b| b[0]).collect();
     assert_eq!(levels, [0.0, 0.25, 0.5]);
     ste.background_rise = 1.0;
-    let clean = replay(world.samplers(), ste, r, &samples).unwrap();
+    let clean = replay(world.room.samplers(), ste, r, &samples).unwrap();
     let levels: Vec<f64> = clean.backgrounds().iter().map(|b| b[0]).collect();
     assert_eq!(levels, [0.0, 0.5, 1.0]);
     let w: Vec<f64> = clean.backgrounds().iter().map(|b| b[1]).collect();
@@ -542,11 +544,11 @@ fn the_background_posterior_tells_a_rising_background_from_none() {
         3,
     )
     .unwrap();
-    let est = replay(world.samplers(), ste, r, &samples).unwrap();
+    let est = replay(world.room.samplers(), ste, r, &samples).unwrap();
     let w: Vec<f64> = est.backgrounds().iter().map(|b| b[1]).collect();
     assert!(w[0] < 0.2, "a rising background in reality: {w:?}");
     ste.background_time_s = 0.0;
-    assert!(replay(world.samplers(), ste, r, &samples).is_err());
+    assert!(replay(world.room.samplers(), ste, r, &samples).is_err());
 }
 
 /// Clean-air model ties: on a lawnmower survey (0.5 m lanes, from the outlet upwind) of a
@@ -576,7 +578,7 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
         ..config.ste
     };
     assert!(!floor.papers_rank().clean_air_rank_floor);
-    let survey = lawnmower(&world.layout, &config.robot, 0.5).unwrap();
+    let survey = lawnmower(&world.room.layout, &config.robot, 0.5).unwrap();
     let recirculating = world
         .with_mismatch(Mismatch {
             background: 1.0,
@@ -588,7 +590,7 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
         let flight = config.flight();
         let samples = fly(&recirculating.reality, &survey.path, source, &flight, 2).unwrap();
         let error = |ste: SteParams| {
-            let est = replay(world.samplers(), ste, r, &samples).unwrap();
+            let est = replay(world.room.samplers(), ste, r, &samples).unwrap();
             let [x, y] = est.estimate();
             (x - source[0]).hypot(y - source[1])
         };
@@ -612,7 +614,7 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
                 clean_air_rank_floor: floor,
                 ..config.ste
             };
-            replay(world.samplers(), ste, r, &samples)
+            replay(world.room.samplers(), ste, r, &samples)
                 .unwrap()
                 .posterior()
                 .to_vec()
@@ -699,18 +701,18 @@ fn the_spread_bank_is_nearer_the_meandering_plumes_average() {
 fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
     use plumenet::ste::replay::replay;
     let world = crate::ste::world().with_wind_spreads(&[0.0, 30.0]).unwrap();
-    assert_eq!(world.banks.len(), 2);
+    assert_eq!(world.room.banks.len(), 2);
     assert!(crate::ste::world().with_wind_spreads(&[]).is_err());
     assert!(crate::ste::world().with_wind_spreads(&[0.0, 95.0]).is_err());
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let survey = lawnmower(&world.layout, &config.robot, 1.0).unwrap();
+    let survey = lawnmower(&world.room.layout, &config.robot, 1.0).unwrap();
     let wandering = world
         .with_mismatch(Mismatch {
             meander_deg: 30.0,
             ..Mismatch::NONE
         })
         .unwrap();
-    let spread_mass = |reality: &plumenet::ste::World, source, seed| {
+    let spread_mass = |reality: &plumenet::sim::World, source, seed| {
         let samples = fly(
             &reality.reality,
             &survey.path,
@@ -720,13 +722,13 @@ fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
         )
         .unwrap();
         let est = replay(
-            world.samplers(),
+            world.room.samplers(),
             config.ste,
             config.robot.radius_m,
             &samples,
         )
         .unwrap();
-        let w = world.marginal(est.bank_posterior(), |b| b.spread_deg);
+        let w = world.room.marginal(est.bank_posterior(), |b| b.spread_deg);
         assert_eq!(w.len(), 2);
         assert!((w[0][1] + w[1][1] - 1.0).abs() < 1e-12);
         w[1][1]
@@ -749,7 +751,7 @@ fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
         "wandering wind: spread {wander:.2?}"
     );
     let ep =
-        plumenet::ste::run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false).unwrap();
+        plumenet::sim::run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false).unwrap();
     assert_eq!(ep.wind_spreads.len(), 2);
     assert_eq!((ep.wind_spreads[0][0], ep.wind_spreads[1][0]), (0.0, 30.0));
     assert_eq!(ep.wind_scales.len(), 1);
@@ -883,11 +885,11 @@ fn the_wander_posterior_tells_a_wandering_wind_from_a_steady_one() {
         })
         .unwrap();
     let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let plain = plumenet::ste::run_episode(world, &config, [5.1, 2.1], [15.0, 1.0], 0, false);
+    let plain = plumenet::sim::run_episode(world, &config, [5.1, 2.1], [15.0, 1.0], 0, false);
     assert_eq!(plain.unwrap().steady_wind, None);
     config.ste.wander_deg = 30.0;
-    let steady_mass = |w: &plumenet::ste::World, seed| {
-        let ep = plumenet::ste::run_episode(w, &config, [5.1, 2.1], [15.0, 1.0], seed, false);
+    let steady_mass = |w: &plumenet::sim::World, seed| {
+        let ep = plumenet::sim::run_episode(w, &config, [5.1, 2.1], [15.0, 1.0], seed, false);
         ep.unwrap().steady_wind.expect("a wander was weighed")
     };
     let steady: Vec<f64> = (0..3).map(|seed| steady_mass(world, seed)).collect();

@@ -108,14 +108,15 @@ fn odometry_covariances_are_fixed_arrays_of_36() {
 fn the_node_answers_over_dds_loopback() {
     use plumenet::ros::msg::{Float64, OccupancyGrid, Pose, PoseStamped};
     use plumenet::ros::node::{NodeSettings, SteNode};
+    use plumenet::sim::EpisodeConfig;
     use plumenet::ste::session::Session;
-    use plumenet::ste::{EpisodeConfig, Feature, SensorPreset};
+    use plumenet::ste::{Feature, SensorPreset};
     use ros2_client::{
         Context, DEFAULT_PUBLISHER_QOS, DEFAULT_SUBSCRIPTION_QOS, MessageTypeName, Name, NodeName,
         NodeOptions,
     };
     let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let session = Session::new(crate::ste::world(), c.session(1)).unwrap();
+    let session = Session::new(&crate::ste::world().room, c.session(1)).unwrap();
     let settings = NodeSettings {
         reading_topic: "plumenet_test/gas".into(),
         pose_topic: "plumenet_test/pose".into(),

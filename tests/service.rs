@@ -7,11 +7,12 @@ use std::net::TcpStream;
 use serde_json::{Value, json};
 
 use plumenet::service::{StateFile, serve_lines, serve_tcp};
+use plumenet::sim::{EpisodeConfig, run_episode};
 use plumenet::ste::posterior::Sample;
 use plumenet::ste::protocol::{NoJournal, Protocol};
 use plumenet::ste::replay::replay;
 use plumenet::ste::session::{Session, SessionConfig};
-use plumenet::ste::{EpisodeConfig, Feature, SensorPreset, run_episode};
+use plumenet::ste::{Feature, SensorPreset};
 
 use crate::ste::world;
 
@@ -22,7 +23,7 @@ fn config() -> SessionConfig {
 
 fn protocol() -> Protocol {
     Protocol::new(
-        Session::new(world(), config()).unwrap(),
+        Session::new(&world().room, config()).unwrap(),
         "wind-tunnel",
         "solver",
     )
@@ -109,7 +110,7 @@ fn the_protocol_answers_in_order_and_refuses_bad_requests_cleanly() {
     assert_eq!(r[4]["iteration"], 1);
     assert_eq!(r[4]["readings"], data.len());
     // `belief` is what `replay` gives for the same readings.
-    let est = replay(world().samplers(), config().ste, 0.07, &data).unwrap();
+    let est = replay(world().room.samplers(), config().ste, 0.07, &data).unwrap();
     let posterior = r[5]["posterior"].as_array().unwrap();
     for (p, q) in posterior.iter().zip(est.posterior()) {
         assert!((p["p"].as_f64().unwrap() - q).abs() < 1e-12);
@@ -167,7 +168,7 @@ fn the_state_file_survives_a_crash_and_drops_a_torn_line() {
         intact,
         "truncated to the intact lines"
     );
-    let mut session = Session::new(world(), config()).unwrap();
+    let mut session = Session::new(&world().room, config()).unwrap();
     session.add_readings(&restored.readings).unwrap();
     session.update().unwrap();
     assert_eq!(session.estimator().posterior(), &before[..]);
@@ -231,14 +232,14 @@ fn tcp_clients_come_and_go_and_the_session_goes_on() {
 #[test]
 fn a_robot_steered_over_tcp_matches_localize() {
     use plumenet::service::RemoteSession;
-    use plumenet::ste::run::simulate_robot;
+    use plumenet::sim::episode::simulate_robot;
     let seed = 6;
     let (source, start) = ([5.1, 2.1], [15.0, 1.0]);
     let c = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
         let session = Session::new(
-            world(),
+            &world().room,
             EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).session(seed),
         )
         .unwrap();

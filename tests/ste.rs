@@ -9,14 +9,14 @@ use rand_chacha::ChaCha8Rng;
 use plumenet::Error;
 use plumenet::layout::Layout;
 use plumenet::plume::PhysicsSolver;
+use plumenet::sim::{EpisodeConfig, World, run_episode};
+use plumenet::ste::banks::PRIOR_BAND_M;
 use plumenet::ste::posterior::{entropy, prior_support};
 use plumenet::ste::replay::{read_log, replay, thin};
 use plumenet::ste::robot::{Occupancy, path_length};
-use plumenet::ste::run::PRIOR_BAND_M;
-use plumenet::ste::{EpisodeConfig, RobotParams, Sampling};
 use plumenet::ste::{
-    Estimator, Feature, FeatureParams, FeatureTrack, MoxParams, MoxSensor, Sample, SensorPreset,
-    SteParams, Termination, World, run_episode,
+    Estimator, Feature, FeatureParams, FeatureTrack, MoxParams, MoxSensor, RobotParams, Sample,
+    Sampling, SensorPreset, SteParams, Termination,
 };
 
 use crate::common::wind_tunnel;
@@ -309,7 +309,7 @@ proptest! {
 fn synthetic_samples(seed: u64, n: usize) -> Vec<Sample> {
     use rand::RngExt;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let layout = &world().layout;
+    let layout = &world().room.layout;
     let mut out = Vec::new();
     while out.len() < n {
         let (x, y) = (rng.random_range(0.5..17.5), rng.random_range(0.3..3.7));
@@ -327,7 +327,13 @@ fn synthetic_samples(seed: u64, n: usize) -> Vec<Sample> {
 
 fn support() -> Vec<bool> {
     let w = world();
-    prior_support(&w.layout, w.sampler.candidates(), 0.07, PRIOR_BAND_M).unwrap()
+    prior_support(
+        &w.room.layout,
+        w.room.sampler.candidates(),
+        0.07,
+        PRIOR_BAND_M,
+    )
+    .unwrap()
 }
 
 fn estimate(feature: Feature, samples: &[Sample]) -> Estimator {
@@ -335,7 +341,7 @@ fn estimate(feature: Feature, samples: &[Sample]) -> Estimator {
 }
 
 fn estimate_with(params: SteParams, samples: &[Sample]) -> Estimator {
-    let mut est = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap();
+    let mut est = Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap();
     let half = samples.len() / 2;
     est.update(&samples[..half]).unwrap();
     est.update(&samples[half..]).unwrap();
@@ -367,13 +373,13 @@ fn hit_features_follow_their_definitions() {
 #[test]
 fn prior_is_uniform_on_its_support_and_zero_elsewhere() {
     let est = Estimator::new(
-        Arc::clone(&world().sampler),
+        Arc::clone(&world().room.sampler),
         &support(),
         SteParams::for_feature(Feature::Rank),
     )
     .unwrap();
     let allowed = support().iter().filter(|&&s| s).count();
-    assert!(allowed > 900 && allowed < world().sampler.len());
+    assert!(allowed > 900 && allowed < world().room.sampler.len());
     assert!((est.entropy() - (allowed as f64).ln()).abs() < 1e-9);
     for (&p, &[x, y]) in est.posterior().iter().zip(est.candidates()) {
         let edge = x.min(y).min(18.0 - x).min(4.0 - y);
@@ -437,13 +443,14 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
     for params in variants {
         let feature = params.feature;
         let ours = feature == Feature::Rank && params.clean_air_ties;
-        let mut est = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap();
+        let mut est =
+            Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap();
         est.update(&samples).unwrap();
         let mut values: Vec<f64> = samples.iter().map(|s| s.value).collect();
         if ours {
             clean_air_ties(&mut values);
         }
-        let sampler = &world().sampler;
+        let sampler = &world().room.sampler;
         let features = |v: &[f64]| -> Vec<f64> {
             match feature {
                 Feature::Rank => edf_brute_force(v).iter().map(|&x| f64::from(x)).collect(),
@@ -475,7 +482,7 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
         } else {
             vec![0.0]
         };
-        let mixed = world().layout.fully_mixed(1.0) * params.ppm_per_unit;
+        let mixed = world().room.layout.fully_mixed(1.0) * params.ppm_per_unit;
         let rise = |t: f64| 1.0 - (-(t - samples[0].t) / params.background_time_s).exp();
         // The sensor's first-order response to `c^a` (rising with tau_res, falling with
         // tau_rec), starting in equilibrium with the first sample, taken back to `c`.
@@ -601,8 +608,8 @@ fn the_wander_marginal_matches_its_formula_by_brute_force() {
     let turned: Vec<_> = angles
         .iter()
         .map(|&a| {
-            let bank = w.sampler.bank().turned(&w.layout, a).unwrap();
-            plumenet::ste::sampler::FieldSampler::new(&w.layout, &bank).unwrap()
+            let bank = w.room.sampler.bank().turned(&w.room.layout, a).unwrap();
+            plumenet::ste::sampler::FieldSampler::new(&w.room.layout, &bank).unwrap()
         })
         .collect();
     let log_w: Vec<f64> = angles
@@ -619,7 +626,7 @@ fn the_wander_marginal_matches_its_formula_by_brute_force() {
         no_lag(SteParams::for_feature(Feature::Value)),
         no_lag(SteParams::for_feature(Feature::Rank).papers_rank()),
     ] {
-        let mut est = Estimator::new(Arc::clone(&w.sampler), &sup, params).unwrap();
+        let mut est = Estimator::new(Arc::clone(&w.room.sampler), &sup, params).unwrap();
         est.update(&samples[..25]).unwrap();
         est.update(&samples[25..]).unwrap();
         let values: Vec<f64> = samples.iter().map(|s| s.value).collect();
@@ -662,7 +669,7 @@ fn the_wander_marginal_matches_its_formula_by_brute_force() {
             })
             .collect();
         let (mut log_lik, mut steady) = (Vec::new(), Vec::new());
-        for k in 0..w.sampler.len() {
+        for k in 0..w.room.sampler.len() {
             let plain: f64 = parts[0][k].iter().sum();
             let wandering: f64 = (0..3)
                 .map(|s| {
@@ -699,7 +706,7 @@ fn the_wander_marginal_matches_its_formula_by_brute_force() {
             wander_deg: bad,
             ..SteParams::for_feature(Feature::Rank)
         };
-        let err = Estimator::new(Arc::clone(&w.sampler), &sup, params).unwrap_err();
+        let err = Estimator::new(Arc::clone(&w.room.sampler), &sup, params).unwrap_err();
         assert!(err.to_string().contains("wander"), "{bad}: {err}");
     }
 }
@@ -955,7 +962,7 @@ fn replay_of_a_synthetic_log_recovers_its_source() {
         let samples = read_log(&path).unwrap();
         let mut params = SteParams::for_feature(Feature::Rank);
         params.sensor_lag_s = None;
-        let est = replay(world().samplers(), params, 0.07, &samples).unwrap();
+        let est = replay(world().room.samplers(), params, 0.07, &samples).unwrap();
         let [x, y] = est.estimate();
         assert!(
             (x - source[0]).hypot(y - source[1]) <= 0.25 * 2f64.sqrt() + 1e-9,
@@ -973,7 +980,7 @@ fn replay_of_a_synthetic_log_recovers_its_source() {
         assert!(thinned.len() <= max && thinned.len() > max / 2);
         let every_4th: Vec<Sample> = samples.iter().step_by(4).copied().collect();
         assert_eq!(thinned, every_4th);
-        let est = replay(world().samplers(), params, 0.07, &thinned).unwrap();
+        let est = replay(world().room.samplers(), params, 0.07, &thinned).unwrap();
         let [x, y] = est.estimate();
         assert!(
             (x - source[0]).hypot(y - source[1]) <= 0.25 * 2f64.sqrt() + 1e-9,
@@ -1086,7 +1093,8 @@ fn clean_air_ties_group_noise_and_survive_gain_and_offset() {
     let run = |s: &[Sample]| {
         let params = SteParams::for_feature(Feature::Rank);
         assert!(params.clean_air_ties && params.rank_tolerance > 1.0);
-        let mut est = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap();
+        let mut est =
+            Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap();
         est.update(&s[..40]).unwrap();
         est.update(&s[40..]).unwrap();
         est.posterior().to_vec()
@@ -1101,7 +1109,7 @@ fn clean_air_ties_group_noise_and_survive_gain_and_offset() {
 
 #[test]
 fn downwind_starts_lie_near_the_outlet_whatever_the_wind() {
-    use plumenet::ste::run::{DOWNWIND_BAND_M, StartRule, random_start};
+    use plumenet::sim::episode::{DOWNWIND_BAND_M, StartRule, random_start};
     let robot = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).robot;
     for from in ["west", "east", "south", "north"] {
         let layout = Layout::from_json(&format!(
@@ -1139,8 +1147,8 @@ fn downwind_starts_lie_near_the_outlet_whatever_the_wind() {
 /// run the same (paired) runs, and the summary keeps them apart.
 #[test]
 fn studies_are_paired_across_sites_and_summarised_per_site() {
-    use plumenet::ste::experiment::{Paths, StudySite, plan_runs, run_study, summarize};
-    use plumenet::ste::run::StartRule;
+    use plumenet::sim::episode::StartRule;
+    use plumenet::study::experiment::{Paths, StudySite, plan_runs, run_study, summarize};
     let plan = plan_runs(&[Feature::Value], &[SensorPreset::Calibrated], 2);
     let run = |model: &str| {
         let site = StudySite {
@@ -1162,7 +1170,7 @@ fn studies_are_paired_across_sites_and_summarised_per_site() {
             (ra.source_x, ra.source_y, ra.start_x, ra.start_y, ra.error_m),
             (rb.source_x, rb.source_y, rb.start_x, rb.start_y, rb.error_m)
         );
-        assert!(ra.start_x >= 18.0 - plumenet::ste::run::DOWNWIND_BAND_M);
+        assert!(ra.start_x >= 18.0 - plumenet::sim::episode::DOWNWIND_BAND_M);
     }
     let rows: Vec<_> = a.into_iter().chain(b).collect();
     let summary = summarize(&rows);
@@ -1232,7 +1240,7 @@ fn drifting_clean_air_ties_follow_a_slow_drift() {
     }
     let mut params = SteParams::for_feature(Feature::Rank);
     params.clean_air_window_s = Some(-1.0);
-    let err = Estimator::new(Arc::clone(&world().sampler), &support(), params).unwrap_err();
+    let err = Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap_err();
     assert!(err.to_string().contains("clean-air window"), "{err}");
 }
 
@@ -1253,7 +1261,7 @@ fn a_session_takes_batches_refuses_bad_readings_and_resets() {
     .unwrap();
     let c = ep.config;
     let config = c.session(9);
-    let mut session = Session::new(world(), config).unwrap();
+    let mut session = Session::new(&world().room, config).unwrap();
     let err = session.iterate(None).unwrap_err().to_string();
     assert!(err.contains("no position to plan from"), "{err}");
     let first = session.iterate(Some([15.0, 1.0])).unwrap();
@@ -1283,7 +1291,13 @@ fn a_session_takes_batches_refuses_bad_readings_and_resets() {
             assert!(it.goal.is_none() && it.path.is_empty());
         }
     }
-    let all = replay(world().samplers(), c.ste, c.robot.radius_m, &ep.samples).unwrap();
+    let all = replay(
+        world().room.samplers(),
+        c.ste,
+        c.robot.radius_m,
+        &ep.samples,
+    )
+    .unwrap();
     for (a, b) in session.estimator().posterior().iter().zip(all.posterior()) {
         assert!((a - b).abs() < 1e-12, "{a} vs {b}");
     }
@@ -1330,7 +1344,7 @@ fn a_windowed_session_keeps_the_last_readings() {
     let ep = run_episode(world(), &c, [4.5, 2.5], [15.0, 1.0], 1, false).unwrap();
     let mut config = c.session(1);
     config.max_readings = Some(300);
-    let mut session = Session::new(world(), config).unwrap();
+    let mut session = Session::new(&world().room, config).unwrap();
     let mut sent = 0;
     for batch in ep.samples.chunks(170) {
         sent += batch.len();
@@ -1343,7 +1357,7 @@ fn a_windowed_session_keeps_the_last_readings() {
     assert!(n > 600);
     let last = &ep.samples[(n - 300) / 150 * 150..];
     assert_eq!(session.readings(), last);
-    let window = replay(world().samplers(), c.ste, c.robot.radius_m, last).unwrap();
+    let window = replay(world().room.samplers(), c.ste, c.robot.radius_m, last).unwrap();
     for (a, b) in session
         .estimator()
         .posterior()
@@ -1361,11 +1375,11 @@ fn goodness_of_fit_tells_a_plume_from_one_no_candidate_explains() {
     let w = world();
     let sup = support();
     let nearest = |p: [f64; 2]| {
-        (0..w.sampler.len())
+        (0..w.room.sampler.len())
             .filter(|&k| sup[k])
             .min_by(|&a, &b| {
                 let d = |k: usize| {
-                    let [x, y] = w.sampler.candidates()[k];
+                    let [x, y] = w.room.sampler.candidates()[k];
                     (x - p[0]).hypot(y - p[1])
                 };
                 d(a).total_cmp(&d(b))
@@ -1374,24 +1388,24 @@ fn goodness_of_fit_tells_a_plume_from_one_no_candidate_explains() {
     };
     let (k0, k1) = (nearest([4.5, 2.5]), nearest([13.5, 2.5]));
     let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut row = vec![0.0f32; w.sampler.len()];
+    let mut row = vec![0.0f32; w.room.sampler.len()];
     let (mut plume, mut mirrored) = (Vec::new(), Vec::new());
     while plume.len() < 400 {
         use rand::RngExt;
         let (x, y) = (rng.random_range(0.5..17.5), rng.random_range(0.3..3.7));
-        if !w.layout.is_free(x, y) || !w.layout.is_free(18.0 - x, y) {
+        if !w.room.layout.is_free(x, y) || !w.room.layout.is_free(18.0 - x, y) {
             continue;
         }
         let t = plume.len() as f64 * 0.1;
-        w.sampler.gather(x, y, 100.0, &mut row);
+        w.room.sampler.gather(x, y, 100.0, &mut row);
         let value = f64::from(row[k0]);
         plume.push(Sample { t, x, y, value });
-        w.sampler.gather(18.0 - x, y, 100.0, &mut row);
+        w.room.sampler.gather(18.0 - x, y, 100.0, &mut row);
         let value = f64::from(row[k1]);
         mirrored.push(Sample { t, x, y, value });
     }
     let params = SteParams::for_feature(Feature::Rank);
-    let fresh = Estimator::new(Arc::clone(&w.sampler), &support(), params).unwrap();
+    let fresh = Estimator::new(Arc::clone(&w.room.sampler), &support(), params).unwrap();
     assert_eq!(fresh.fit(), None);
     let good = estimate_with(params, &plume).fit().unwrap();
     let bad = estimate_with(params, &mirrored).fit().unwrap();

@@ -14,17 +14,18 @@ use plumenet::report::belief::{BeliefPlot, belief_panel, write_episode_pictures}
 use plumenet::report::boxplot::{BoxPanel, group_values};
 
 use plumenet::report::{Panel, markdown_table, save_figure};
+use plumenet::sim::episode::StartRule;
+use plumenet::sim::survey::{fly, lawnmower};
+use plumenet::sim::{EpisodeConfig, Mismatch, Reality, World, derive_seed, run_episode};
 use plumenet::ste::baseline::Guess;
-use plumenet::ste::compare;
-use plumenet::ste::experiment::{
-    Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
-};
 use plumenet::ste::replay::{read_log, replay_in_steps, thin};
-use plumenet::ste::run::{StartRule, derive_seed};
-use plumenet::ste::survey::{fly, lawnmower};
 use plumenet::ste::{
-    Baselines, EpisodeConfig, Estimator, Feature, Mismatch, PlannerKind, Reality, RobotParams,
-    Sampling, SensorPreset, Sigmas, SteParams, Termination, World, run_episode,
+    Baselines, Estimator, Feature, PlannerKind, RobotParams, RoomBanks, Sampling, SensorPreset,
+    Sigmas, SteParams, Termination,
+};
+use plumenet::study::compare;
+use plumenet::study::experiment::{
+    Paths, RunRow, StudySite, SummaryRow, plan_runs, plot_values, run_study, summarize,
 };
 use plumenet::surrogate::Surrogate;
 use plumenet::viewer::RunView;
@@ -71,25 +72,24 @@ pub struct PlumeArgs {
 }
 
 impl PlumeArgs {
-    /// Loads the layout's world (wind + bank) for the chosen model; also returns the model's
-    /// name for reports.
-    pub fn world(&self, layout: Layout) -> Result<(World, String)> {
-        let (world, name, note) = self.world_of(layout, self.solver)?;
+    /// The layout's banks for the chosen model; also returns the model's name for reports.
+    pub fn room(&self, layout: Layout) -> Result<(RoomBanks, String)> {
+        let (room, name, note) = self.room_of(layout, self.solver)?;
         println!("{note}");
-        Ok((world, name))
+        Ok((room, name))
     }
 
-    /// [`PlumeArgs::world`] with its note on standard error (standard output being a
+    /// [`PlumeArgs::room`] with its note on standard error (standard output being a
     /// protocol's).
-    pub fn world_quietly(&self, layout: Layout) -> Result<(World, String)> {
-        let (world, name, note) = self.world_of(layout, self.solver)?;
+    pub fn room_quietly(&self, layout: Layout) -> Result<(RoomBanks, String)> {
+        let (room, name, note) = self.room_of(layout, self.solver)?;
         eprintln!("{note}");
-        Ok((world, name))
+        Ok((room, name))
     }
 
-    /// The world with the physics solver (`solver`) or the chosen PlumeNet model, its name, and
+    /// The banks of the physics solver (`solver`) or the chosen PlumeNet model, its name, and
     /// a note on the bank for the user.
-    fn world_of(&self, layout: Layout, solver: bool) -> Result<(World, String, String)> {
+    fn room_of(&self, layout: Layout, solver: bool) -> Result<(RoomBanks, String, String)> {
         let model: Box<dyn PlumeModel> = if solver {
             Box::new(PhysicsSolver)
         } else {
@@ -101,18 +101,18 @@ impl PlumeArgs {
             })?)
         };
         let cache = (!self.no_cache).then_some(self.cache_dir.as_path());
-        let (world, hit) = World::build(layout, model.as_ref(), self.spacing, cache)?;
+        let (room, hit) = RoomBanks::build(layout, model.as_ref(), self.spacing, cache)?;
         // The defaults (scale 1, spread 0) keep the layout's own bank.
-        let world = world
+        let room = room
             .with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
             .with_wind_spreads(&self.wind_spreads)?;
         let note = format!(
             "plume model {}: {} candidates{}",
             model.name(),
-            world.sampler.len(),
+            room.sampler.len(),
             if hit { " (bank from cache)" } else { "" }
         );
-        Ok((world, model.name(), note))
+        Ok((room, model.name(), note))
     }
 
     /// The candidate spacing (m).
@@ -212,10 +212,10 @@ pub struct FeatureArgs {
 }
 
 impl FeatureArgs {
-    /// The estimator settings for a feature in a world (whose plume model gives the default
-    /// model rank factor) with these overrides.
-    pub fn params(&self, feature: Feature, world: &World) -> SteParams {
-        let mut p = world.ste_params(feature);
+    /// The estimator settings for a feature over a room's banks (whose plume model gives the
+    /// default model rank factor) with these overrides.
+    pub fn params(&self, feature: Feature, room: &RoomBanks) -> SteParams {
+        let mut p = room.ste_params(feature);
         let d = Sigmas::default_for(feature);
         p.sigmas = Sigmas {
             model: self.sigma_model.unwrap_or(d.model),
@@ -486,7 +486,7 @@ impl TrialArgs {
     fn start(&self, layout: &Layout, robot: &RobotParams, seed: u64) -> Result<[f64; 2]> {
         Ok(match self.start {
             Some((x, y)) => [x, y],
-            None => plumenet::ste::run::random_start(
+            None => plumenet::sim::episode::random_start(
                 layout,
                 robot,
                 StartRule::Anywhere,
@@ -531,13 +531,13 @@ pub struct LocalizeArgs {
 pub fn localize(a: LocalizeArgs) -> Result<()> {
     let (layout, source) = a.trial.layout_and_source()?;
     let mismatch = a.reality.mismatch()?;
-    let (world, model_name) = a.plume.world(layout)?;
-    let world = world.with_mismatch(mismatch)?;
+    let (room, model_name) = a.plume.room(layout)?;
+    let world = World::new(room)?.with_mismatch(mismatch)?;
     let feature = Feature::from(a.feature);
     let config = a
         .run
-        .config(a.features.params(feature, &world), a.sensor.into());
-    let start = a.trial.start(&world.layout, &config.robot, a.seed)?;
+        .config(a.features.params(feature, &world.room), a.sensor.into());
+    let start = a.trial.start(&world.room.layout, &config.robot, a.seed)?;
     let keep_posteriors = a.png_dir.is_some() || a.html.is_some();
     let episode = run_episode(&world, &config, source, start, a.seed, keep_posteriors)?;
     println!(
@@ -572,8 +572,8 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     }
     if let Some(dir) = &a.png_dir {
         let paths = write_episode_pictures(
-            &world.layout,
-            world.sampler.candidates(),
+            &world.room.layout,
+            world.room.sampler.candidates(),
             a.plume.spacing(),
             &episode,
             dir,
@@ -592,8 +592,8 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         );
         RunView::from_episode(
             title,
-            &world.layout,
-            world.sampler.candidates(),
+            &world.room.layout,
+            world.room.sampler.candidates(),
             a.plume.spacing(),
             &episode,
         )?
@@ -604,7 +604,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         let mut value = serde_json::to_value(&episode)?;
         value["model"] = json!(model_name);
         value["sigmas"] = json!(config.ste.sigmas);
-        value["candidates"] = json!(world.sampler.candidates());
+        value["candidates"] = json!(world.room.sampler.candidates());
         io::write_json(path, &value)?;
         println!("wrote {}", path.display());
     }
@@ -659,9 +659,9 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     if let Some([x, y]) = source {
         layout.check_source(x, y)?;
     }
-    let (world, model_name) = a.plume.world(layout)?;
+    let (room, model_name) = a.plume.room(layout)?;
     let feature = Feature::from(a.feature);
-    let params = a.features.params(feature, &world);
+    let params = a.features.params(feature, &room);
     let steps = if a.html.is_some() {
         a.html_steps as usize
     } else {
@@ -671,8 +671,8 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         Some(n) => thin(&samples, n as usize)?,
         None => samples.clone(),
     };
-    let banks = world.samplers().len();
-    let candidates = world.sampler.candidates().len();
+    let banks = room.samplers().len();
+    let candidates = room.sampler.candidates().len();
     let need = Estimator::memory_bytes(banks, candidates, &params, used.len());
     if let Some(free) = io::available_memory_bytes().filter(|&free| need > free) {
         // The most readings that fit in half the free memory.
@@ -689,10 +689,10 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     if used.len() < samples.len() {
         println!("thinned to {} of {} readings", used.len(), samples.len());
     }
-    let (est, trace) = replay_in_steps(world.samplers(), params, a.robot_radius, &used, steps)?;
+    let (est, trace) = replay_in_steps(room.samplers(), params, a.robot_radius, &used, steps)?;
     let estimate = est.estimate();
     let error_m = source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1]));
-    let baselines = Baselines::new(&world.layout, &samples, source)?;
+    let baselines = Baselines::new(&room.layout, &samples, source)?;
     println!(
         "{} readings, {}: entropy {:.2} nats, fit {:.3}",
         used.len(),
@@ -714,7 +714,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             estimate[1]
         );
         let panel = belief_panel(
-            &world.layout,
+            &room.layout,
             BeliefPlot {
                 title: &title,
                 candidates: est.candidates(),
@@ -732,7 +732,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     }
     if let Some(path) = &a.html {
         let view = RunView::from_replay(
-            &world.layout,
+            &room.layout,
             est.candidates(),
             a.plume.spacing(),
             &params,
@@ -761,8 +761,8 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
             "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": used.len(), "log_readings": samples.len(),
             "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
             "baselines": baselines, "backgrounds": est.backgrounds(), "posterior": posterior,
-            "wind_scales": world.marginal(est.bank_posterior(), |b| b.wind_scale),
-            "wind_spreads": world.marginal(est.bank_posterior(), |b| b.spread_deg),
+            "wind_scales": room.marginal(est.bank_posterior(), |b| b.wind_scale),
+            "wind_spreads": room.marginal(est.bank_posterior(), |b| b.spread_deg),
             "steady_wind": est.steady_posterior(),
         });
         if let (Some(s), Some(e)) = (source, error_m) {
@@ -800,12 +800,12 @@ pub struct SessionArgs {
 }
 
 impl SessionArgs {
-    /// The session's settings in a world.
-    fn config(&self, world: &World) -> plumenet::ste::session::SessionConfig {
+    /// The session's settings over a room's banks.
+    fn config(&self, room: &RoomBanks) -> plumenet::ste::session::SessionConfig {
         let mut config = self
             .run
             .config(
-                self.features.params(self.feature.into(), world),
+                self.features.params(self.feature.into(), room),
                 SensorPreset::SensorII,
             )
             .session(self.seed);
@@ -815,14 +815,14 @@ impl SessionArgs {
 
     /// The layout's world and the model's name; notes go to standard error (standard output
     /// may be a protocol's).
-    fn world(&self) -> Result<(World, String)> {
-        self.plume.world_quietly(Layout::load(&self.layout)?)
+    fn room(&self) -> Result<(RoomBanks, String)> {
+        self.plume.room_quietly(Layout::load(&self.layout)?)
     }
 
     /// A fresh session, with the layout's and the model's names.
     fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
-        let (world, model) = self.world()?;
-        let session = plumenet::ste::session::Session::new(&world, self.config(&world))?;
+        let (room, model) = self.room()?;
+        let session = plumenet::ste::session::Session::new(&room, self.config(&room))?;
         Ok((session, layout_name(&self.layout), model))
     }
 }
@@ -875,7 +875,7 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
     let wind = WindField::solve(&layout)?;
     let reality = Reality::new(&layout, &wind, mismatch)?;
     let mut server = RemoteSession::connect(a.connect.as_str())?;
-    let run = plumenet::ste::run::simulate_robot(
+    let run = plumenet::sim::episode::simulate_robot(
         &reality,
         &config.flight(),
         [source, start],
@@ -1206,8 +1206,9 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
             Some(s) => Paths::Survey(&s.path),
         };
         for &solver in &models {
-            let (model_world, _, note) = a.plume.world_of(layout.clone(), solver)?;
+            let (room, _, note) = a.plume.room_of(layout.clone(), solver)?;
             println!("{note}");
+            let model_world = World::new(room)?;
             for &mismatch in &realities {
                 let world = model_world.with_mismatch(mismatch)?;
                 let bar = super::progress_bar(plan.len(), "runs");
@@ -1221,7 +1222,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
                     site,
                     &plan,
                     a.seed,
-                    |f, s| a.run.config(a.overrides.params(f, &world), s),
+                    |f, s| a.run.config(a.overrides.params(f, &world.room), s),
                     || bar.inc(1),
                 )?);
                 bar.finish_and_clear();
@@ -1342,7 +1343,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         a.batch,
         a.repeats,
         a.samples,
-        world.sampler.len()
+        world.room.sampler.len()
     );
     let mut report = Vec::new();
     let rank = SteParams::for_feature(Feature::Rank);
@@ -1368,7 +1369,8 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             ("rank-paper", rank.papers_rank()),
         ]);
     for (name, params) in variants {
-        let t = plumenet::bench::time_ste_update(&world, params, a.samples, a.batch, a.repeats)?;
+        let t =
+            plumenet::bench::time_ste_update(&world.room, params, a.samples, a.batch, a.repeats)?;
         println!(
             "  {:13} update {:7.2} ms   floor (read N x n once) {:6.2} ms   ratio {:5.1}x",
             name,
@@ -1389,11 +1391,13 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
     };
     let mut nuisances = Vec::new();
     if a.wind_scales.len() > 1 {
-        let banks = world.with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
+        let banks = world
+            .room
+            .with_wind_scales(&PhysicsSolver, &a.wind_scales, None)?;
         nuisances.push(("wind-speed banks", banks, bare, a.wind_scales.len()));
     }
     if a.wind_spreads.len() > 1 {
-        let banks = world.with_wind_spreads(&a.wind_spreads)?;
+        let banks = world.room.with_wind_spreads(&a.wind_spreads)?;
         nuisances.push(("wind-spread banks", banks, bare, a.wind_spreads.len()));
     }
     if a.background_rise > 0.0 {
@@ -1401,19 +1405,25 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             background_rise: a.background_rise,
             ..bare
         };
-        nuisances.push(("background rises", world.clone(), with, 3));
+        nuisances.push(("background rises", world.room.clone(), with, 3));
     }
     if a.wind_wander > 0.0 {
         let with = SteParams {
             wander_deg: a.wind_wander,
             ..bare
         };
-        nuisances.push(("wind turns", world.clone(), with, with.wander_turns().len()));
+        nuisances.push((
+            "wind turns",
+            world.room.clone(),
+            with,
+            with.wander_turns().len(),
+        ));
     }
-    let time = |w: &World, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
+    let time =
+        |w: &RoomBanks, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
     let mut nuisance = Vec::new();
     if !nuisances.is_empty() {
-        let one = time(&world, bare)?;
+        let one = time(&world.room, bare)?;
         for (what, w, params, k) in &nuisances {
             let all = time(w, *params)?;
             let per_added = (all.update_s - one.update_s) / (k - 1) as f64 / one.update_s;
@@ -1556,19 +1566,19 @@ pub struct BenchServeArgs {
 }
 
 pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
-    let (world, model) = a.session.world()?;
-    let config = a.session.config(&world);
+    let (room, model) = a.session.room()?;
+    let config = a.session.config(&room);
     println!(
         "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
-        world.sampler.len()
+        room.sampler.len()
     );
     let mut sizes = Vec::new();
     for &n in &a.sizes {
-        let s = plumenet::bench::time_session_iteration(&world, config, n, 100)?;
+        let s = plumenet::bench::time_session_iteration(&room, config, n, 100)?;
         println!("  at {n:6} readings: {:8.1} ms", s * 1e3);
         sizes.push(json!({"readings": n, "iteration_ms": s * 1e3}));
     }
-    let load = plumenet::bench::serve_load(&world, config, a.rate, a.seconds, a.iterate_every)?;
+    let load = plumenet::bench::serve_load(&room, config, a.rate, a.seconds, a.iterate_every)?;
     let rt = &load.round_trips_s;
     let ms = |k: usize| rt.get(k).map_or(f64::NAN, |s| s * 1e3);
     println!(

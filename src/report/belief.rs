@@ -12,8 +12,8 @@ use plotters::prelude::*;
 use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::report::{FieldPanel, FieldPlot, Panel, colour, legend, save_figure};
+use crate::sim::episode::Episode;
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
-use crate::ste::run::Episode;
 
 const TRAJECTORY: RGBColor = RGBColor(215, 215, 215);
 const SOURCE: RGBColor = RGBColor(230, 30, 30);

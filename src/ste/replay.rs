@@ -6,8 +6,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
+use crate::ste::banks::PRIOR_BAND_M;
 use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
-use crate::ste::run::PRIOR_BAND_M;
 use crate::ste::sampler::FieldSampler;
 
 const COLUMNS: [&str; 4] = ["t", "x", "y", "value"];

@@ -14,10 +14,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
+use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::planner::{Planner, PlannerKind};
 use crate::ste::posterior::{Estimator, Sample, SteParams, Termination, prior_support};
 use crate::ste::robot::{Occupancy, RobotParams};
-use crate::ste::run::{PRIOR_BAND_M, World};
 use crate::ste::sampler::FieldSampler;
 
 /// Mass of the credible region an iteration reports.
@@ -70,7 +70,7 @@ pub struct Iteration {
     pub path: Vec<[f64; 2]>,
 }
 
-/// A live session over one world's banks.
+/// A live session over one room's banks.
 #[derive(Debug, Clone)]
 pub struct Session {
     config: SessionConfig,
@@ -90,22 +90,22 @@ pub struct Session {
 }
 
 impl Session {
-    /// A fresh session (uniform prior, no readings) in `world`.
+    /// A fresh session (uniform prior, no readings) over `room`'s banks.
     ///
     /// # Errors
     /// [`Error::Parameter`] for bad robot or STE settings, or a layout with no room for the
     /// robot or no candidate in the prior.
-    pub fn new(world: &World, config: SessionConfig) -> Result<Self> {
+    pub fn new(room: &RoomBanks, config: SessionConfig) -> Result<Self> {
         config.robot.check()?;
-        let layout = &world.layout;
+        let layout = &room.layout;
         let occupancy = Occupancy::new(layout, config.robot.radius_m + config.robot.clearance_m)?;
         let support = prior_support(
             layout,
-            world.sampler.candidates(),
+            room.sampler.candidates(),
             config.robot.radius_m,
             PRIOR_BAND_M,
         )?;
-        Self::start(config, world.samplers(), support, occupancy)
+        Self::start(config, room.samplers(), support, occupancy)
     }
 
     /// A session at its start (uniform prior, no readings), from its parts.

@@ -17,10 +17,14 @@ use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::physics::filament::{FilamentConfig, FilamentPlume};
 use crate::physics::wind::WindField;
+use crate::sim::seed::derive_seed;
 use crate::ste::posterior::Sample;
 use crate::ste::robot::{RobotParams, Sampling, path_length, point_at};
-use crate::ste::run::derive_seed;
 use crate::ste::sensor::{MoxSensor, SensorPreset};
+
+/// How long the robot stands at its start before the run, sensing (s): about four recovery
+/// time constants, so the sensor has settled.
+pub const SENSOR_SETTLE_S: f64 = 20.0;
 
 /// How reality departs from the plume model (every knob neutral by default).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -267,7 +271,7 @@ pub(crate) struct Field {
 
 impl Field {
     /// Releases gas at `source` in `reality` and warms the plume up for the flight's warm-up,
-    /// the last [`crate::ste::run::SENSOR_SETTLE_S`] of it with the robot sensing at `start`
+    /// the last [`SENSOR_SETTLE_S`] of it with the robot sensing at `start`
     /// (so its sensor is in equilibrium with the air there), then starts the clock at 0 with
     /// the robot at `start`. The plume and the sensor noise draw from streams 1 and 2 of `seed`.
     ///
@@ -281,7 +285,7 @@ impl Field {
         seed: u64,
     ) -> Result<Self> {
         let mut plume = reality.plume(source, flight.robot.tick_s, derive_seed(seed, 1))?;
-        let settle = crate::ste::run::SENSOR_SETTLE_S.min(flight.warmup_s);
+        let settle = SENSOR_SETTLE_S.min(flight.warmup_s);
         plume.advance(flight.warmup_s - settle);
         let mut field = Field {
             plume,

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::report::markdown_table;
 use crate::stats::{mean_std, paired_difference, sign_test};
-use crate::ste::experiment::RunRow;
+use crate::study::experiment::RunRow;
 
 /// A run ending further off than this (m) counts as far off.
 pub const FAR_M: f64 = 1.5;

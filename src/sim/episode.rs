@@ -22,243 +22,99 @@ use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::Layout;
 use crate::physics::wind::WindField;
-use crate::plume::{PlumeBank, PlumeModel, cached_bank};
+use crate::plume::PlumeModel;
+use crate::sim::reality::{Field, Flight, Mismatch, Reality};
+use crate::sim::seed::derive_seed;
+use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
 use crate::ste::planner::PlannerKind;
 use crate::ste::posterior::{Sample, SteParams, Termination};
-use crate::ste::reality::{Field, Flight, Mismatch, Reality};
 use crate::ste::robot::{Occupancy, RobotParams, path_length};
-use crate::ste::sampler::FieldSampler;
 use crate::ste::sensor::SensorPreset;
 use crate::ste::session::{Iteration, Session, SessionConfig};
 
-/// Width of the boundary band the prior excludes (m): one candidate spacing.
-pub const PRIOR_BAND_M: f64 = 0.25;
-
-/// How long the robot stands at its start before the run, sensing (s): about four recovery
-/// time constants, so the sensor has settled.
-pub const SENSOR_SETTLE_S: f64 = 20.0;
-
-/// One plume bank the estimator weighs, with the nuisance values it was made for.
-#[derive(Debug, Clone)]
-pub struct Bank {
-    /// The model's wind speed, as a factor of the layout's.
-    pub wind_scale: f64,
-    /// The spread of the wind's direction (degrees, see
-    /// [`PlumeBank::spread_over_directions`]).
-    pub spread_deg: f64,
-    /// The fields, ready for sampling.
-    pub sampler: Arc<FieldSampler>,
-}
-
-impl Bank {
-    /// The layout's own bank: its wind speed, no spread.
-    fn plain(sampler: Arc<FieldSampler>) -> Self {
-        Self {
-            wind_scale: 1.0,
-            spread_deg: 0.0,
-            sampler,
-        }
-    }
-}
-
-/// The world a run happens in: the layout, its wind, the plume banks of the model, and the
-/// reality the robot senses.
+/// The world a simulated run happens in: the room as the estimator sees it, the room's wind,
+/// and the reality the robot senses.
 #[derive(Debug, Clone)]
 pub struct World {
-    /// The arena.
-    pub layout: Layout,
-    /// Its steady wind, as the plume model assumes it.
+    /// The layout and the plume model's banks.
+    pub room: RoomBanks,
+    /// The room's steady wind, as the plume model assumes it.
     pub wind: WindField,
-    /// The plume model's bank at the layout's wind speed, ready for sampling.
-    pub sampler: Arc<FieldSampler>,
-    /// The banks the estimator marginalises over: the layout's alone unless
-    /// [`World::with_wind_scales`] or [`World::with_wind_spreads`] was used.
-    pub banks: Vec<Bank>,
     /// What the robot senses (the model on average unless a [`Mismatch`] is set).
     pub reality: Arc<Reality>,
-    /// The plume model's [`PlumeModel::rank_factor`], the default of
-    /// [`SteParams::model_rank_factor`] for this world.
-    pub model_rank_factor: f64,
 }
 
 impl World {
-    /// Solves the layout's wind and gets the model's bank over the candidate grid of spacing
-    /// `spacing_m`, from the cache directory when given (see [`cached_bank`]). Also returns
-    /// whether the bank came from the cache.
+    /// The room's banks ([`RoomBanks::build`]), its solved wind and a reality without
+    /// mismatch. Also returns whether the bank came from the cache.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for a bad spacing or a layout without candidates, the solvers' and
-    /// the model's errors, and cache write failures.
+    /// As [`RoomBanks::build`], and the wind solver's errors.
     pub fn build(
         layout: Layout,
         model: &dyn PlumeModel,
         spacing_m: f64,
         cache: Option<&Path>,
     ) -> Result<(Self, bool)> {
-        let candidates = layout.candidates(spacing_m)?;
-        if candidates.is_empty() {
-            return Err(Error::Parameter(format!(
-                "the layout has no free candidate cell at spacing {spacing_m} m"
-            )));
-        }
-        let (sampler, hit) = sampler_of(model, &layout, &candidates, cache)?;
-        let wind = WindField::solve(&layout)?;
-        let reality = Arc::new(Reality::new(&layout, &wind, Mismatch::NONE)?);
-        Ok((
-            Self {
-                layout,
-                wind,
-                banks: vec![Bank::plain(Arc::clone(&sampler))],
-                sampler,
-                reality,
-                model_rank_factor: model.rank_factor(),
-            },
-            hit,
-        ))
+        let (room, hit) = RoomBanks::build(layout, model, spacing_m, cache)?;
+        Ok((Self::new(room)?, hit))
     }
 
-    /// The estimator's default settings for `feature` over this world's banks: the feature's
-    /// defaults ([`SteParams::for_feature`]) with the plume model's own rank factor.
-    pub fn ste_params(&self, feature: Feature) -> SteParams {
-        SteParams {
-            model_rank_factor: self.model_rank_factor,
-            ..SteParams::for_feature(feature)
-        }
-    }
-
-    /// The same world with the estimator marginalising over the model's wind speed: one bank
-    /// of `model` for each factor in `scales` (the layout's speed times the factor; 1 reuses
-    /// the layout's own bank), each equally likely a priori. These banks replace the world's
-    /// (spread them after, with [`World::with_wind_spreads`]).
+    /// The world of `room`: its wind solved, reality as the model on average.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for no factor, or a factor that is not positive and finite; the
-    /// model's errors (a speed outside a PlumeNet model's trained range among them).
+    /// The wind solver's errors.
+    pub fn new(room: RoomBanks) -> Result<Self> {
+        let wind = WindField::solve(&room.layout)?;
+        let reality = Arc::new(Reality::new(&room.layout, &wind, Mismatch::NONE)?);
+        Ok(Self {
+            room,
+            wind,
+            reality,
+        })
+    }
+
+    /// The same world with the estimator marginalising over the model's wind speed
+    /// ([`RoomBanks::with_wind_scales`]).
+    ///
+    /// # Errors
+    /// As [`RoomBanks::with_wind_scales`].
     pub fn with_wind_scales(
         &self,
         model: &dyn PlumeModel,
         scales: &[f64],
         cache: Option<&Path>,
     ) -> Result<Self> {
-        if scales.is_empty() || scales.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(Error::Parameter(format!(
-                "model wind scales must be positive numbers, got {scales:?}"
-            )));
-        }
-        let candidates = self.sampler.candidates();
-        let banks = scales
-            .iter()
-            .map(|&scale| {
-                let sampler = if scale == 1.0 {
-                    Arc::clone(&self.sampler)
-                } else {
-                    let mut spec = self.layout.spec().clone();
-                    spec.wind.speed_mps *= scale;
-                    let layout = spec.check()?;
-                    sampler_of(model, &layout, candidates, cache)?.0
-                };
-                Ok(Bank {
-                    wind_scale: scale,
-                    ..Bank::plain(sampler)
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
         Ok(Self {
-            banks,
+            room: self.room.with_wind_scales(model, scales, cache)?,
             ..self.clone()
         })
     }
 
     /// The same world with the estimator marginalising over the spread of the wind's
-    /// direction: each of the world's banks once per spread in `spreads` (degrees; each bank's
-    /// fields averaged over turned winds, see [`PlumeBank::spread_over_directions`]; 0 keeps
-    /// the bank as it is), each equally likely a priori.
+    /// direction ([`RoomBanks::with_wind_spreads`]).
     ///
     /// # Errors
-    /// [`Error::Parameter`] for no spread, or a spread outside `0..=90` degrees.
+    /// As [`RoomBanks::with_wind_spreads`].
     pub fn with_wind_spreads(&self, spreads: &[f64]) -> Result<Self> {
-        if spreads.is_empty() {
-            return Err(Error::Parameter(
-                "give at least one wind-direction spread".into(),
-            ));
-        }
-        for &spread_deg in spreads {
-            PlumeBank::check_spread(spread_deg)?;
-        }
-        let mut banks = Vec::with_capacity(self.banks.len() * spreads.len());
-        for bank in &self.banks {
-            let fields = spreads
-                .iter()
-                .any(|&s| s != 0.0)
-                .then(|| bank.sampler.bank());
-            for &spread_deg in spreads {
-                let sampler = match &fields {
-                    Some(fields) if spread_deg != 0.0 => {
-                        let spread = fields.spread_over_directions(&self.layout, spread_deg)?;
-                        Arc::new(FieldSampler::new(&self.layout, &spread)?)
-                    }
-                    _ => Arc::clone(&bank.sampler),
-                };
-                banks.push(Bank {
-                    spread_deg,
-                    sampler,
-                    ..*bank
-                });
-            }
-        }
         Ok(Self {
-            banks,
+            room: self.room.with_wind_spreads(spreads)?,
             ..self.clone()
         })
     }
 
-    /// The banks' samplers, in the order of [`World::banks`].
-    pub fn samplers(&self) -> Vec<Arc<FieldSampler>> {
-        self.banks.iter().map(|b| Arc::clone(&b.sampler)).collect()
-    }
-
-    /// The posterior of one nuisance, `value` of each bank (its wind scale or spread), summed
-    /// over the others: `[value, probability]` in the order the values first appear in
-    /// [`World::banks`], from the estimator's bank posterior (in that order too).
-    pub fn marginal(&self, bank_posterior: &[f64], value: fn(&Bank) -> f64) -> Vec<[f64; 2]> {
-        let mut marginal: Vec<[f64; 2]> = Vec::new();
-        for (bank, &p) in self.banks.iter().zip(bank_posterior) {
-            let v = value(bank);
-            match marginal.iter_mut().find(|m| m[0] == v) {
-                Some(m) => m[1] += p,
-                None => marginal.push([v, p]),
-            }
-        }
-        marginal
-    }
-
-    /// The same world (layout and banks) with reality departing from the model by `mismatch`.
+    /// The same world with reality departing from the model by `mismatch`.
     ///
     /// # Errors
     /// [`Error::Parameter`] for bad knobs, and the wind solver's errors.
     pub fn with_mismatch(&self, mismatch: Mismatch) -> Result<Self> {
         Ok(Self {
-            reality: Arc::new(Reality::new(&self.layout, &self.wind, mismatch)?),
+            reality: Arc::new(Reality::new(&self.room.layout, &self.wind, mismatch)?),
             ..self.clone()
         })
     }
-}
-
-/// The model's bank of `candidates` in `layout`, through the cache when given, ready for
-/// sampling; also whether it came from the cache.
-fn sampler_of(
-    model: &dyn PlumeModel,
-    layout: &Layout,
-    candidates: &[[f64; 2]],
-    cache: Option<&Path>,
-) -> Result<(Arc<FieldSampler>, bool)> {
-    let (bank, hit) = match cache {
-        Some(dir) => cached_bank(model, layout, candidates, dir)?,
-        None => (model.bank(layout, candidates)?, false),
-    };
-    Ok((Arc::new(FieldSampler::new(layout, &bank)?), hit))
 }
 
 /// Settings of one run.
@@ -393,16 +249,6 @@ pub struct Episode {
     pub steady_wind: Option<f64>,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
-}
-
-/// A seed for stream `stream` of a run seed (SplitMix64 finaliser, so nearby seeds diverge).
-pub fn derive_seed(seed: u64, stream: u64) -> u64 {
-    let mut z = seed
-        .wrapping_add(stream.wrapping_mul(0x9E37_79B9_7F4A_7C15))
-        .wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 /// Draws a point uniformly until `accept` takes it (at most 100 000 tries).
@@ -600,7 +446,7 @@ pub fn run_episode(
     keep_posteriors: bool,
 ) -> Result<Episode> {
     let clock = Instant::now();
-    let layout = &world.layout;
+    let layout = &world.room.layout;
     config.robot.check()?;
     layout.check_source(source[0], source[1])?;
     let occupancy = Occupancy::new(layout, config.robot.radius_m + config.robot.clearance_m)?;
@@ -615,7 +461,7 @@ pub fn run_episode(
         });
     }
     let mut field = Field::start(&world.reality, &config.flight(), source, start, seed)?;
-    let mut session = Session::new(world, config.session(seed))?;
+    let mut session = Session::new(&world.room, config.session(seed))?;
     let mut history = Vec::new();
     let next = steer_robot(
         &mut field,
@@ -657,8 +503,8 @@ pub fn run_episode(
         posterior: est.posterior().to_vec(),
         baselines,
         reality: world.reality.mismatch(),
-        wind_scales: world.marginal(est.bank_posterior(), |b| b.wind_scale),
-        wind_spreads: world.marginal(est.bank_posterior(), |b| b.spread_deg),
+        wind_scales: world.room.marginal(est.bank_posterior(), |b| b.wind_scale),
+        wind_spreads: world.room.marginal(est.bank_posterior(), |b| b.spread_deg),
         backgrounds: est.backgrounds(),
         steady_wind: est.steady_posterior(),
         wall_time_s: clock.elapsed().as_secs_f64(),

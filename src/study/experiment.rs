@@ -14,16 +14,17 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
+use crate::sim::episode::{
+    EpisodeConfig, StartRule, World, random_source, random_start, run_episode,
+};
+use crate::sim::seed::derive_seed;
+use crate::sim::survey::fly;
 use crate::stats::{mean_std, median};
 use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
 use crate::ste::replay::replay;
 use crate::ste::robot::path_length;
-use crate::ste::run::{
-    EpisodeConfig, StartRule, World, derive_seed, random_source, random_start, run_episode,
-};
 use crate::ste::sensor::SensorPreset;
-use crate::ste::survey::fly;
 
 /// One run of a study, as a CSV row.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -137,7 +138,7 @@ pub fn plan_runs(
 pub enum Paths<'a> {
     /// The planner's, iteration by iteration, from a random start (the paper's study).
     Planner(StartRule),
-    /// This fixed survey path (e.g. [`crate::ste::survey::lawnmower`]), flown at the robot's
+    /// This fixed survey path (e.g. [`crate::sim::survey::lawnmower`]), flown at the robot's
     /// speed; the STE takes all its readings in one update.
     Survey(&'a [[f64; 2]]),
 }
@@ -190,7 +191,12 @@ fn run_one(
     let world = site.world;
     match site.paths {
         Paths::Planner(rule) => {
-            let start = random_start(&world.layout, &config.robot, rule, derive_seed(seed, 11))?;
+            let start = random_start(
+                &world.room.layout,
+                &config.robot,
+                rule,
+                derive_seed(seed, 11),
+            )?;
             let ep = run_episode(world, config, source, start, seed, false)?;
             let distance_m = ep
                 .trajectory
@@ -214,7 +220,7 @@ fn run_one(
             let clock = std::time::Instant::now();
             let samples = fly(&world.reality, path, source, &config.flight(), seed)?;
             let est = replay(
-                world.samplers(),
+                world.room.samplers(),
                 config.ste,
                 config.robot.radius_m,
                 &samples,
@@ -224,7 +230,7 @@ fn run_one(
                 start: path[0],
                 estimate,
                 error_m: (estimate[0] - source[0]).hypot(estimate[1] - source[1]),
-                baselines: Baselines::new(&world.layout, &samples, Some(source))?,
+                baselines: Baselines::new(&world.room.layout, &samples, Some(source))?,
                 iterations: 0,
                 converged: false,
                 samples: samples.len(),
@@ -254,7 +260,7 @@ pub fn run_study(
         .map(|&(feature, sensor, run)| {
             let config = configure(feature, sensor);
             let run_seed = derive_seed(seed, run as u64);
-            let source = random_source(&world.layout, derive_seed(run_seed, 10))?;
+            let source = random_source(&world.room.layout, derive_seed(run_seed, 10))?;
             let out = run_one(site, &config, source, run_seed)?;
             done();
             let error = |g: crate::ste::baseline::Guess| g.error_m.unwrap_or(f64::NAN);

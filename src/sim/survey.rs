@@ -10,8 +10,8 @@
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::Layout;
+use crate::sim::reality::{Field, Flight, Reality};
 use crate::ste::posterior::Sample;
-use crate::ste::reality::{Field, Flight, Reality};
 use crate::ste::robot::{Occupancy, RobotParams};
 
 /// A survey's planned path.

@@ -1,0 +1,5 @@
+//! Studies of the estimator over many simulated runs: the paper's experiment and its
+//! variants, and paired comparisons of two studies.
+
+pub mod compare;
+pub mod experiment;
