@@ -9,6 +9,7 @@ mod dataset;
 mod filament;
 mod frame;
 mod layout;
+mod project_files;
 mod reality;
 mod report;
 mod ros;
