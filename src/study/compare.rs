@@ -1,7 +1,7 @@
 //! Paired comparison of two studies run on the same seeds (`plumenet compare`).
 //!
 //! Run `r` of a study with seed `S` has the same source, start, plume and sensor noise whatever
-//! the estimator's settings ([`crate::ste::experiment`]), so two studies that differ only in
+//! the estimator's settings ([`crate::study::experiment`]), so two studies that differ only in
 //! those settings compare run by run. The errors of the planner's runs scatter by 2-3 m (a few
 //! runs end 10 m off), so two means of 50 or 200 runs can differ by tenths of a metre from
 //! noise alone; the paired difference and its standard error say how much of a difference
