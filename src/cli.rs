@@ -22,8 +22,12 @@ use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
 use plumenet::{bench, io};
 
+mod args;
 mod bench_net;
-mod ste;
+mod bench_ste;
+mod live;
+mod run;
+mod study;
 
 /// Calibration-free gas source localisation: dispersion simulator, datasets and plume banks.
 #[derive(Debug, Parser)]
@@ -52,27 +56,27 @@ enum Command {
     /// Accuracy of a trained PlumeNet on a dataset (relative L2, Spearman rho).
     Eval(EvalArgs),
     /// One simulated localisation run: robot, MOX sensor, filament plume and the STE.
-    Localize(ste::LocalizeArgs),
+    Localize(run::LocalizeArgs),
     /// The STE over a logged run (CSV t,x,y,value), for a real robot's readings.
-    Replay(ste::ReplayArgs),
+    Replay(run::ReplayArgs),
     /// Fly a raster survey through the simulated reality and write its readings log.
-    Survey(ste::SurveyArgs),
+    Survey(study::SurveyArgs),
     /// Serve a live STE session to a robot: JSON lines on stdin/stdout or TCP.
-    Serve(ste::ServeArgs),
+    Serve(live::ServeArgs),
     /// Play the robot (filament plume, MOX sensor, motion) against a running `serve`.
-    RobotSim(ste::RobotSimArgs),
+    RobotSim(live::RobotSimArgs),
     /// Time session iterations and stream a load over TCP to an in-process `serve`.
-    BenchServe(ste::BenchServeArgs),
+    BenchServe(bench_ste::BenchServeArgs),
     /// Run the live STE as a ROS 2 node (built with --features ros2).
     #[cfg(feature = "ros2")]
-    Ros2Node(ste::Ros2NodeArgs),
+    Ros2Node(live::Ros2NodeArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
-    Experiment(ste::ExperimentArgs),
+    Experiment(study::ExperimentArgs),
     /// Two studies run on the same seeds, run by run: the paired difference of their errors
     /// with its standard error, and sign tests.
-    Compare(ste::CompareArgs),
+    Compare(study::CompareArgs),
     /// Time one STE update per feature (one core) and a whole simulated run.
-    BenchSte(ste::BenchSteArgs),
+    BenchSte(bench_ste::BenchSteArgs),
     /// PlumeNet's bank and training throughput, side by side with the same network in PyTorch.
     BenchNet(bench_net::BenchNetArgs),
 }
@@ -356,17 +360,17 @@ impl Cli {
             Command::Train(a) => train(a),
             Command::Predict(a) => predict(a),
             Command::Eval(a) => eval(a),
-            Command::Localize(a) => ste::localize(a),
-            Command::Replay(a) => ste::replay_log(a),
-            Command::Survey(a) => ste::survey(a),
-            Command::Serve(a) => ste::serve(a),
-            Command::RobotSim(a) => ste::robot_sim(a),
-            Command::BenchServe(a) => ste::bench_serve(a),
+            Command::Localize(a) => run::localize(a),
+            Command::Replay(a) => run::replay_log(a),
+            Command::Survey(a) => study::survey(a),
+            Command::Serve(a) => live::serve(a),
+            Command::RobotSim(a) => live::robot_sim(a),
+            Command::BenchServe(a) => bench_ste::bench_serve(a),
             #[cfg(feature = "ros2")]
-            Command::Ros2Node(a) => ste::ros2_node(a),
-            Command::Experiment(a) => ste::experiment(a),
-            Command::Compare(a) => ste::compare(a),
-            Command::BenchSte(a) => ste::bench_ste(a),
+            Command::Ros2Node(a) => live::ros2_node(a),
+            Command::Experiment(a) => study::experiment(a),
+            Command::Compare(a) => study::compare(a),
+            Command::BenchSte(a) => bench_ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),
         }
     }

@@ -1413,3 +1413,26 @@ fn goodness_of_fit_tells_a_plume_from_one_no_candidate_explains() {
     assert!(good < 0.05, "plume fit {good}");
     assert!(bad > 5.0 * good, "mirrored fit {bad} vs plume {good}");
 }
+
+/// A replay that would not fit in the free memory is refused before it starts, naming the
+/// `--thin-to N` whose readings fit in half of it; one that fits, or without a reading of the
+/// free memory, goes ahead.
+#[test]
+fn a_replay_too_large_for_memory_is_refused_with_the_thinning_that_fits() {
+    use plumenet::ste::replay::check_memory;
+    let room = &world().room;
+    let params = SteParams::for_feature(Feature::Rank);
+    let candidates = room.sampler.candidates().len();
+    let per_reading = Estimator::memory_bytes(1, candidates, &params, 1);
+    let need = Estimator::memory_bytes(1, candidates, &params, 10_000);
+    assert_eq!(need, 10_000 * per_reading);
+    assert!(check_memory(room, &params, 10_000, None).is_ok());
+    assert!(check_memory(room, &params, 10_000, Some(need)).is_ok());
+    let free = need / 4;
+    let err = check_memory(room, &params, 10_000, Some(free))
+        .unwrap_err()
+        .to_string();
+    let fits = free / 2 / per_reading;
+    assert!(err.contains(&format!("--thin-to {fits} or fewer")), "{err}");
+    assert!(err.contains("replaying 10000 readings"), "{err}");
+}

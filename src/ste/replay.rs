@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
-use crate::ste::banks::PRIOR_BAND_M;
+use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
 use crate::ste::sampler::FieldSampler;
 
@@ -97,6 +97,36 @@ pub struct ReplayStep {
     pub estimate: [f64; 2],
     /// Posterior of every candidate.
     pub posterior: Vec<f64>,
+}
+
+/// Checks that a replay of `readings` readings over `room`'s banks fits in memory: what the
+/// estimator needs ([`Estimator::memory_bytes`]) against the free memory (`free`, in bytes;
+/// nothing is checked without it).
+///
+/// # Errors
+/// [`Error::Parameter`] when it does not fit, naming the `--thin-to N` (the most readings
+/// that fit in half the free memory) that does.
+pub fn check_memory(
+    room: &RoomBanks,
+    params: &SteParams,
+    readings: usize,
+    free: Option<u64>,
+) -> Result<()> {
+    let banks = room.banks.len();
+    let candidates = room.sampler.candidates().len();
+    let need = Estimator::memory_bytes(banks, candidates, params, readings);
+    let Some(free) = free.filter(|&free| need > free) else {
+        return Ok(());
+    };
+    let per_reading = Estimator::memory_bytes(banks, candidates, params, 1).max(1);
+    let fits = ((free / 2) / per_reading).max(1);
+    Err(Error::Parameter(format!(
+        "replaying {readings} readings over {candidates} candidates and {banks} bank(s) needs \
+         about {:.1} GB, more than the {:.1} GB free; thin the log with --thin-to {fits} or \
+         fewer",
+        need as f64 / 1e9,
+        free as f64 / 1e9,
+    )))
 }
 
 /// Runs the estimator over all readings at once, over one bank or several (see

@@ -10,19 +10,28 @@
 //! and obstacles), starts uniform over the positions the robot may occupy ([`StartRule`]), or
 //! over those near the outlet.
 
+use std::path::Path;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::io;
+use crate::layout::Layout;
+use crate::report::boxplot::{BoxPanel, group_values};
+use crate::report::{Panel, markdown_table, save_figure};
 use crate::sim::episode::{
     EpisodeConfig, StartRule, World, random_source, random_start, run_episode,
 };
+use crate::sim::reality::Mismatch;
 use crate::sim::seed::derive_seed;
-use crate::sim::survey::fly;
+use crate::sim::survey::{fly, lawnmower};
 use crate::stats::{mean_std, median};
+use crate::ste::banks::RoomBanks;
 use crate::ste::baseline::Baselines;
 use crate::ste::features::Feature;
 use crate::ste::replay::replay;
+use crate::ste::robot::RobotParams;
 use crate::ste::robot::path_length;
 use crate::ste::sensor::SensorPreset;
 
@@ -389,4 +398,197 @@ pub fn plot_values(rows: &[RunRow], metric: Metric, baselines: bool) -> Vec<(Str
         }
     }
     values
+}
+
+/// Whose paths the runs of every site follow ([`Paths`] before a site's survey is planned).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PathsRule {
+    /// The planner's, from a start drawn by the rule.
+    Planner(StartRule),
+    /// One lawnmower survey per site with lanes this far apart (m).
+    Lawnmower(f64),
+}
+
+/// A whole study: every site x plume model x reality x planned run.
+#[derive(Debug, Clone, Copy)]
+pub struct Study<'a> {
+    /// The layouts and their names in the rows.
+    pub sites: &'a [(String, Layout)],
+    /// The plume models, by their names in the rows.
+    pub models: &'a [&'a str],
+    /// The realities each model's runs meet.
+    pub realities: &'a [Mismatch],
+    /// Whose paths.
+    pub paths: PathsRule,
+    /// The robot a survey is planned for.
+    pub robot: RobotParams,
+    /// The runs of each site, model and reality ([`plan_runs`]).
+    pub plan: &'a [(Feature, SensorPreset, usize)],
+    /// The study's seed.
+    pub seed: u64,
+}
+
+impl Study<'_> {
+    /// How many runs the study holds.
+    pub fn total_runs(&self) -> usize {
+        self.sites.len() * self.models.len() * self.realities.len() * self.plan.len()
+    }
+
+    /// Runs the study: `room` gives a site's banks for a plume model (by name), `configure` a
+    /// run's settings for a feature, sensor and those banks, and `done` is called after each
+    /// run. Rows come back site by site, model by model, reality by reality, in plan order.
+    ///
+    /// # Errors
+    /// The banks' errors (of the caller's type `E`), the surveys' and the runs' errors.
+    pub fn run<E: From<Error>>(
+        &self,
+        mut room: impl FnMut(&Layout, &str) -> std::result::Result<RoomBanks, E>,
+        configure: impl Fn(Feature, SensorPreset, &RoomBanks) -> EpisodeConfig + Sync,
+        done: impl Fn() + Sync,
+    ) -> std::result::Result<Vec<RunRow>, E> {
+        let mut rows = Vec::with_capacity(self.total_runs());
+        for (name, layout) in self.sites {
+            let survey = match self.paths {
+                PathsRule::Planner(_) => None,
+                PathsRule::Lawnmower(spacing_m) => Some(lawnmower(layout, &self.robot, spacing_m)?),
+            };
+            let paths = match (&survey, self.paths) {
+                (Some(s), _) => Paths::Survey(&s.path),
+                (None, PathsRule::Planner(rule)) => Paths::Planner(rule),
+                (None, PathsRule::Lawnmower(_)) => unreachable!("a lawnmower study plans a survey"),
+            };
+            for &model in self.models {
+                let model_world = World::new(room(layout, model)?)?;
+                for &mismatch in self.realities {
+                    let world = model_world.with_mismatch(mismatch)?;
+                    let site = StudySite {
+                        world: &world,
+                        layout: name,
+                        model,
+                        paths,
+                    };
+                    rows.extend(run_study(
+                        site,
+                        self.plan,
+                        self.seed,
+                        |f, s| configure(f, s, &world.room),
+                        &done,
+                    )?);
+                }
+            }
+        }
+        Ok(rows)
+    }
+}
+
+/// The layouts of a study: each file of `files`, named by its stem, then the first `rooms`
+/// layouts of the dataset `rooms_of`, named `DATASET-k`.
+///
+/// # Errors
+/// The layouts' and the manifest's errors; [`Error::Parameter`] for a `rooms` that is not
+/// between 1 and the dataset's layouts.
+pub fn load_sites(
+    files: &[&Path],
+    rooms_of: Option<&Path>,
+    rooms: usize,
+) -> Result<Vec<(String, Layout)>> {
+    let name = |path: &Path| {
+        path.file_stem().map_or_else(
+            || path.display().to_string(),
+            |s| s.to_string_lossy().into(),
+        )
+    };
+    let mut sites = Vec::new();
+    for &path in files {
+        sites.push((name(path), Layout::load(path)?));
+    }
+    if let Some(dir) = rooms_of {
+        let manifest = crate::dataset::Manifest::load(dir)?;
+        if rooms == 0 || rooms > manifest.layouts.len() {
+            return Err(Error::Parameter(format!(
+                "--rooms {rooms} is not between 1 and the {} layouts of {}",
+                manifest.layouts.len(),
+                dir.display()
+            )));
+        }
+        for (k, spec) in manifest.layouts.into_iter().take(rooms).enumerate() {
+            sites.push((format!("{}-{k}", name(dir)), spec.check()?));
+        }
+    }
+    Ok(sites)
+}
+
+/// Writes a study's `runs.csv`, `summary.csv`, `summary.md` and `boxplots.png` into `dir`,
+/// and returns the summary's Markdown table.
+///
+/// # Errors
+/// [`Error::Io`] when a file cannot be written; the figure's errors.
+pub fn write_study(dir: &Path, rows: &[RunRow]) -> Result<String> {
+    let summary = summarize(rows);
+    io::write_csv(&dir.join("runs.csv"), rows)?;
+    io::write_csv(&dir.join("summary.csv"), &summary)?;
+    let table = summary_table(&summary);
+    io::write_atomic(&dir.join("summary.md"), |buf| {
+        buf.extend_from_slice(table.as_bytes());
+        Ok(())
+    })?;
+    let panel = |title: &str, y_desc: &str, metric: Metric, baselines: bool| {
+        Panel::Boxes(BoxPanel {
+            title: title.into(),
+            y_desc: y_desc.into(),
+            groups: group_values(&plot_values(rows, metric, baselines)),
+        })
+    };
+    save_figure(
+        &[
+            panel(
+                "localisation error, with the highest-reading and centre baselines",
+                "error (m)",
+                |r| r.error_m,
+                true,
+            ),
+            panel("iterations", "iterations", |r| r.iterations as f64, false),
+        ],
+        &dir.join("boxplots.png"),
+    )?;
+    Ok(table)
+}
+
+/// A study's summary as a Markdown table.
+pub fn summary_table(summary: &[SummaryRow]) -> String {
+    let header = [
+        "layout",
+        "model",
+        "reality",
+        "paths",
+        "feature",
+        "sensor",
+        "runs",
+        "error mean ± std (m)",
+        "median (m)",
+        "highest reading (m)",
+        "centre (m)",
+        "iterations mean ± std",
+        "converged",
+    ];
+    markdown_table(
+        &header,
+        summary.iter().map(|s| {
+            vec![
+                s.layout.clone(),
+                s.model.clone(),
+                s.reality.clone(),
+                s.paths.clone(),
+                s.feature.clone(),
+                s.sensor.clone(),
+                s.runs.to_string(),
+                format!("{:.2} ± {:.2}", s.error_mean_m, s.error_std_m),
+                format!("{:.2}", s.error_median_m),
+                format!("{:.2}", s.highest_error_mean_m),
+                format!("{:.2}", s.centre_error_mean_m),
+                format!("{:.1} ± {:.1}", s.iterations_mean, s.iterations_std),
+                format!("{:.0}%", 100.0 * s.converged_share),
+            ]
+        }),
+    )
 }
