@@ -2,7 +2,8 @@
 //!
 //! [`sensor`] models the MOX sensor, [`features`] extracts the four gas features, [`banks`]
 //! holds the plume model's banks of a room, [`sampler`] reads a bank at reading positions,
-//! [`posterior`] holds the Bayesian filter and the termination rule, [`robot`] the occupancy
+//! [`params`] holds the estimator's settings, [`posterior`] the Bayesian filter and the
+//! termination rule, [`robot`] the occupancy
 //! grid and A* paths, [`planner`] the belief-clustering and baseline planners, [`session`] the
 //! live session a robot drives and [`protocol`] its line protocol, [`replay`] the estimator
 //! over a logged run, [`baseline`] the simple guesses every report shows beside the estimate.
@@ -10,6 +11,7 @@
 pub mod banks;
 pub mod baseline;
 pub mod features;
+pub mod params;
 pub mod planner;
 pub mod posterior;
 pub mod protocol;

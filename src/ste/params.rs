@@ -1,0 +1,324 @@
+//! The estimator's settings: the likelihood's standard deviations, every option of the
+//! features and the likelihood ([`SteParams`], with each feature's defaults).
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::ste::features::{Feature, FeatureParams};
+use crate::ste::sensor::{MoxParams, SensorPreset};
+
+/// Standard deviations of the model and measurement errors of one feature, in the feature's
+/// unit; only `sigma_E^2 + sigma_M^2` enters the likelihood.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Sigmas {
+    /// `sigma_E`, model (plume-bank) error.
+    pub model: f64,
+    /// `sigma_M`, measurement error.
+    pub measurement: f64,
+}
+
+impl Sigmas {
+    /// The defaults of a feature. They were tuned on training seeds only
+    /// (`docs/method.md`): value in ppm, the others on their `[0, 1]` scale.
+    pub fn default_for(feature: Feature) -> Self {
+        let (model, measurement) = match feature {
+            Feature::Value => (40.0, 40.0),
+            Feature::FixedHit => (0.5, 0.5),
+            Feature::AdaptiveHit => (0.7, 0.7),
+            Feature::Rank => (0.5, 0.5),
+        };
+        Self { model, measurement }
+    }
+
+    pub(crate) fn variance(&self) -> f64 {
+        self.model * self.model + self.measurement * self.measurement
+    }
+}
+
+/// Everything the estimator needs besides the bank.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SteParams {
+    /// The gas feature.
+    pub feature: Feature,
+    /// Feature settings (fixed threshold, lambda).
+    pub features: FeatureParams,
+    /// Error standard deviations.
+    pub sigmas: Sigmas,
+    /// ppm per plume-model unit (the known source strength).
+    pub ppm_per_unit: f64,
+    /// Sensor response and recovery time constants `[tau_res, tau_rec]` (s) applied to the
+    /// estimated concentration series (see [`crate::ste::posterior::Estimator`]); `None` compares the plume model's
+    /// values directly, as the paper writes it.
+    pub sensor_lag_s: Option<[f64; 2]>,
+    /// The exponent `a` of the sensor's response in which that lag acts: the estimated
+    /// concentrations `c` are raised to `a`, lagged, and taken back (`c^a` lagged, then to the
+    /// power `1/a`). A MOX sensor's dynamics act on its output, and its conductance follows the
+    /// gas as the power `1/|k|` of its type's datasheet slope `k` (with a load resistor small
+    /// against the sensor's resistance, so does the divider's voltage): `1/1.58` for the
+    /// MiCS-5521, a property of the sensor type like the time constants, not a calibration.
+    /// Rank's default is that exponent, with [`SteParams::detection_floor_ppm`] lowered to
+    /// where the readings' clean-air band ends; the other features' is 1, which lags the
+    /// concentration itself (and is what records from before this setting read back as).
+    #[serde(default = "concentration_lag")]
+    pub sensor_lag_exponent: f64,
+    /// Estimated concentrations below this (ppm) are set to zero: a sensor cannot tell them
+    /// apart, and without the floor the rank feature would order samples by the plume model's
+    /// exponentially small upwind tails (values like 1e-20), which carry no physical meaning.
+    /// 1 ppm by default; rank's is 0.2 ppm, where Sensor II's clean-air tie band ends (three
+    /// noise levels above clean air), to go with the lag in the sensor's response.
+    pub detection_floor_ppm: f64,
+    /// Rank only: treat readings within three noise levels of the clean-air baseline as one
+    /// tie group (see [`crate::ste::posterior::clean_air_ties`]). On by default; the rank posterior is then invariant
+    /// under gain and offset of the readings, no longer under every increasing transform.
+    pub clean_air_ties: bool,
+    /// Rank only, with `clean_air_ties` and the background nuisance: an estimate that is the
+    /// background alone (its plume below the detection floor) and ranked within the readings'
+    /// clean-air tie group (below the group's rank `q`, its share of the readings) joins that
+    /// group, its rank raised to `q`: the sensor cannot order those readings, so neither is
+    /// the background's order among them compared. Off by default (and for records from
+    /// before this setting): it fixes a rising background on surveys but costs elsewhere
+    /// (`docs/ablations.md`).
+    #[serde(default)]
+    pub clean_air_model_ties: bool,
+    /// Rank only, with `clean_air_ties` and the background nuisance: in a background slot,
+    /// every estimate ranked within the readings' clean-air tie group (below the group's rank
+    /// `q`, its share of the readings) joins that group, whatever its value (the model ties'
+    /// estimates of the background alone among them): the sensor cannot order the lowest `q`
+    /// of the readings, so the slot's lowest `q` of the estimates are not compared by their
+    /// order either. The slot without a background is left as it is (flooring it too broke
+    /// the planner's paths). Off by default (and for records from before this setting): it
+    /// helps surveys in unseen rooms and costs in the paper arena
+    /// (`docs/ablations.md`).
+    #[serde(default)]
+    pub clean_air_rank_floor: bool,
+    /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
+    /// clean-air baseline is taken, so that it follows a drifting baseline (sensor drift, gas
+    /// accumulating in the room); readings above it count by their excess over it. `None`
+    /// takes one baseline over the whole run.
+    pub clean_air_window_s: Option<f64>,
+    /// Rank only: the factor `r >= 1` within which the plume model's concentrations are
+    /// trusted; the share of estimates within that factor of each estimate is added to its
+    /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
+    pub rank_tolerance: f64,
+    /// Rank only: the factor `r_e >= 1` within which the plume model's concentrations are
+    /// known when they are ranked; each candidate's *expected* ranks under that uncertainty
+    /// are compared with the readings' (see the module doc). 1 (the default here, and what
+    /// records from before this setting read back as) compares its exact ranks; the CLI takes
+    /// the plume model's own factor ([`crate::plume::PlumeModel::rank_factor`]: 1 for the
+    /// solver, 3 for PlumeNet).
+    #[serde(default = "exact_model_ranks")]
+    pub model_rank_factor: f64,
+    /// A background of recirculated gas rising during the run, as a nuisance: the model's
+    /// concentrations plus `a * (1 - exp(-t / background_time_s))` (t from the first reading),
+    /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
+    /// concentrations ([`crate::layout::Layout::fully_mixed`]), each equally likely a priori and marginalised
+    /// in the posterior. 0 turns it off; rank's default is 0.5, the other features' 0 (and 0 is
+    /// what records from before this setting read back as).
+    #[serde(default)]
+    pub background_rise: f64,
+    /// The background's time constant (s), the room's air-exchange time.
+    #[serde(default = "default_background_time_s")]
+    pub background_time_s: f64,
+    /// The wind's direction as a hidden state that may wander during the run: the prior
+    /// standard deviation (degrees) of its turn. Two hypotheses, equally likely a priori
+    /// (`WANDER_STEADY`): the wind is steady (the bank as it is, the paper's form), or it
+    /// wanders, its direction fixed within each `WANDER_SEGMENT_S` of readings and unknown
+    /// among turns of 0, ±0.5, ±1 and ±1.5 standard deviations (`WANDER_NODES`, Gaussian
+    /// prior weights; [`crate::plume::PlumeBank::turned`] banks), marginalised per segment and the segments
+    /// multiplied. 0 (the default, and what records from before this setting read back as)
+    /// takes the wind as steady. Each turn costs about one bank's update.
+    #[serde(default)]
+    pub wander_deg: f64,
+}
+
+/// The lag in the concentration itself: what records from before
+/// [`SteParams::sensor_lag_exponent`] read back as.
+fn concentration_lag() -> f64 {
+    1.0
+}
+
+/// Exact model ranks: the default [`SteParams::model_rank_factor`].
+fn exact_model_ranks() -> f64 {
+    1.0
+}
+
+/// The default time constant of the background's rise (s).
+fn default_background_time_s() -> f64 {
+    60.0
+}
+
+impl SteParams {
+    /// The defaults for a feature.
+    pub fn for_feature(feature: Feature) -> Self {
+        // The source strength and the time constants are the sensor type's, not a calibration.
+        let sensor = MoxParams::for_preset(SensorPreset::SensorII);
+        Self {
+            feature,
+            features: FeatureParams::default(),
+            sigmas: Sigmas::default_for(feature),
+            ppm_per_unit: sensor.ppm_per_unit,
+            sensor_lag_s: Some([sensor.tau_res_s, sensor.tau_rec_s]),
+            sensor_lag_exponent: match feature {
+                Feature::Rank => sensor.response_exponent(),
+                _ => concentration_lag(),
+            },
+            detection_floor_ppm: match feature {
+                Feature::Rank => RANK_DETECTION_FLOOR_PPM,
+                _ => DETECTION_FLOOR_PPM,
+            },
+            clean_air_ties: true,
+            clean_air_model_ties: false,
+            clean_air_rank_floor: false,
+            clean_air_window_s: None,
+            rank_tolerance: RANK_TOLERANCE,
+            model_rank_factor: 1.0,
+            background_rise: match feature {
+                Feature::Rank => BACKGROUND_RISE,
+                _ => 0.0,
+            },
+            background_time_s: default_background_time_s(),
+            wander_deg: 0.0,
+        }
+    }
+
+    /// The wind turns (degrees) the estimator weighs: `[0]` with a steady wind, else
+    /// [`SteParams::wander_deg`] times each of `WANDER_NODES`, 0 first.
+    pub fn wander_turns(&self) -> Vec<f64> {
+        match self.wander_deg {
+            0.0 => vec![0.0],
+            s => WANDER_NODES.iter().map(|u| u * s).collect(),
+        }
+    }
+
+    /// The same settings with the sensor's lag in the concentration itself and the 1 ppm
+    /// detection floor: the other features' defaults.
+    pub fn lag_in_concentration(self) -> Self {
+        Self {
+            sensor_lag_exponent: concentration_lag(),
+            detection_floor_ppm: DETECTION_FLOOR_PPM,
+            ..self
+        }
+    }
+
+    /// The same settings with the paper's rank likelihood: no clean-air ties (of the readings
+    /// or of the model), no rank tolerance, exact model ranks, no background nuisance, and the
+    /// other features' lag in the concentration and detection floor
+    /// ([`SteParams::lag_in_concentration`]; other features are unaffected).
+    pub fn papers_rank(self) -> Self {
+        Self {
+            clean_air_ties: false,
+            clean_air_model_ties: false,
+            clean_air_rank_floor: false,
+            rank_tolerance: 1.0,
+            model_rank_factor: 1.0,
+            background_rise: 0.0,
+            wander_deg: 0.0,
+            ..self.lag_in_concentration()
+        }
+    }
+
+    pub(crate) fn check(&self) -> Result<()> {
+        self.features.check()?;
+        let s = [self.sigmas.model, self.sigmas.measurement];
+        if s.iter().any(|v| !v.is_finite() || *v < 0.0) || self.sigmas.variance() <= 0.0 {
+            return Err(Error::Parameter(format!(
+                "sigmas must be finite, non-negative and not both zero: {:?}",
+                self.sigmas
+            )));
+        }
+        if self
+            .sensor_lag_s
+            .is_some_and(|t| t.iter().any(|v| !(v.is_finite() && *v > 0.0)))
+        {
+            return Err(Error::Parameter(format!(
+                "sensor time constants must be positive, got {:?}",
+                self.sensor_lag_s
+            )));
+        }
+        if !(self.detection_floor_ppm.is_finite() && self.detection_floor_ppm >= 0.0) {
+            return Err(Error::Parameter(format!(
+                "detection floor must be finite and non-negative, got {}",
+                self.detection_floor_ppm
+            )));
+        }
+        if self
+            .clean_air_window_s
+            .is_some_and(|w| !(w.is_finite() && w > 0.0))
+        {
+            return Err(Error::Parameter(format!(
+                "the clean-air window must be a positive number of seconds, got {:?}",
+                self.clean_air_window_s
+            )));
+        }
+        if !(self.sensor_lag_exponent.is_finite()
+            && self.sensor_lag_exponent > 0.0
+            && self.sensor_lag_exponent <= 1.0)
+        {
+            return Err(Error::Parameter(format!(
+                "the sensor lag's exponent must lie in (0, 1], got {}",
+                self.sensor_lag_exponent
+            )));
+        }
+        if !(self.rank_tolerance.is_finite() && self.rank_tolerance >= 1.0) {
+            return Err(Error::Parameter(format!(
+                "rank tolerance must be a factor of at least 1, got {}",
+                self.rank_tolerance
+            )));
+        }
+        if !(self.model_rank_factor.is_finite() && self.model_rank_factor >= 1.0) {
+            return Err(Error::Parameter(format!(
+                "the model's rank factor must be at least 1, got {}",
+                self.model_rank_factor
+            )));
+        }
+        if !(self.background_rise.is_finite() && self.background_rise >= 0.0) {
+            return Err(Error::Parameter(format!(
+                "the background rise must be zero or positive, got {}",
+                self.background_rise
+            )));
+        }
+        if !(self.background_time_s.is_finite() && self.background_time_s > 0.0) {
+            return Err(Error::Parameter(format!(
+                "the background time constant must be a positive number of seconds, got {}",
+                self.background_time_s
+            )));
+        }
+        if !(self.wander_deg.is_finite() && (0.0..=MAX_WANDER_DEG).contains(&self.wander_deg)) {
+            return Err(Error::Parameter(format!(
+                "the wind's wander must be between 0 and {MAX_WANDER_DEG} degrees, got {}",
+                self.wander_deg
+            )));
+        }
+        if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
+            return Err(Error::Parameter(format!(
+                "ppm per unit must be positive, got {}",
+                self.ppm_per_unit
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The default rank tolerance: model concentrations are trusted within a factor of 3.
+const RANK_TOLERANCE: f64 = 3.0;
+
+/// The default detection floor (ppm).
+const DETECTION_FLOOR_PPM: f64 = 1.0;
+
+/// Rank's detection floor (ppm): where Sensor II's clean-air tie band ends, about 0.1 ppm above
+/// clean air (three noise levels), rounded up.
+const RANK_DETECTION_FLOOR_PPM: f64 = 0.2;
+
+/// Rank's default background nuisance: a rise of up to half the fully mixed concentration
+/// (chosen on the mismatch suite: the smallest rise measured that fixes a rising background
+/// in the paper arena and in unseen rooms; without a background it costs nothing measurable
+/// with Sensor II and about 0.1 m with the calibrated sensor and Sensor I).
+const BACKGROUND_RISE: f64 = 0.5;
+
+/// The wander hypothesis's turns of the wind, in prior standard deviations (see
+/// [`SteParams::wander_deg`]), the steady direction first: a Gaussian truncated at 1.5 of them.
+pub(crate) const WANDER_NODES: [f64; 7] = [0.0, -1.5, -1.0, -0.5, 0.5, 1.0, 1.5];
+
+/// The largest wander's standard deviation (degrees): its widest turn, 1.5 of them, stays
+/// within 90 degrees, beyond which the wind would blow back to the inlet.
+pub const MAX_WANDER_DEG: f64 = 60.0;
