@@ -11,6 +11,7 @@ use serde_json::json;
 
 use plumenet::dataset::{self, Distribution, GenerateConfig, GenerateParams, RoomParams, Shard};
 use plumenet::frame::Frame;
+use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
@@ -20,7 +21,6 @@ use plumenet::surrogate::config::{Selection, WarmStart};
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
 use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
-use plumenet::{bench, io};
 
 mod args;
 mod bench_net;
@@ -28,6 +28,7 @@ mod bench_ste;
 mod live;
 mod run;
 mod study;
+mod timing;
 
 /// Calibration-free gas source localisation: dispersion simulator, datasets and plume banks.
 #[derive(Debug, Parser)]
@@ -513,7 +514,7 @@ fn merge(a: MergeArgs) -> Result<()> {
 
 fn run_bench(a: BenchArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
-    let (t, transport, candidates) = bench::time_bank(&layout, a.spacing, a.repeats)?;
+    let (t, transport, candidates) = timing::time_bank(&layout, a.spacing, a.repeats)?;
     let ms = |s: f64| s * 1e3;
     println!(
         "layout {} ({} x {} cells, {} unknowns, {} candidates), medians of {} runs, {} threads",
@@ -543,7 +544,7 @@ fn run_bench(a: BenchArgs) -> Result<()> {
         // Removed when dropped, whichever way this block ends.
         let tmp = export_dir("plumenet-bench-")?;
         let dir = tmp.path();
-        bench::export_system(&transport, &candidates, dir)?;
+        timing::export_system(&transport, &candidates, dir)?;
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/superlu_bench.py");
         let output = Process::new("python3")
             .arg(&script)

@@ -60,7 +60,6 @@
 
 #![warn(missing_docs)]
 
-pub mod bench;
 pub mod dataset;
 pub mod error;
 pub mod frame;

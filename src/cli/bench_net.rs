@@ -9,9 +9,9 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde_json::{Value, json};
 
-use plumenet::bench::median;
 use plumenet::io;
 use plumenet::layout::Layout;
+use plumenet::stats::median;
 use plumenet::surrogate::bench::{
     conv_layers, cpu_peak, export_reference, forward_macs, time_bank, time_conv_layer,
     time_training,
@@ -259,7 +259,7 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
                 side.train.clone()
             }
         };
-        let rate = median(rates(&ours));
+        let rate = median(&rates(&ours));
         let g = gflops(rate, passes);
         println!(
             "{what:8}: ours      {rate:7.1} img/s ({g:5.1} GFLOP/s{})",
@@ -272,7 +272,7 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
             if !used {
                 continue;
             }
-            let other = median(rates(side));
+            let other = median(&rates(side));
             let o = gflops(other, passes);
             println!(
                 "{:8}  {name:9} {other:7.1} img/s ({o:5.1} GFLOP/s{}); ours / {name} = {:.2}x",
@@ -286,10 +286,10 @@ pub fn bench_net(a: BenchNetArgs) -> Result<()> {
         }
     }
     let train_share = 1.0 - defaults.validation_fraction;
-    let bank_s = |side: &Side| (n * model.views()) as f64 / median(side.bank.clone());
+    let bank_s = |side: &Side| (n * model.views()) as f64 / median(&side.bank);
     let epoch_s = |side: &Side| {
-        EPOCH_SAMPLES * train_share / median(side.train.clone())
-            + EPOCH_SAMPLES * (1.0 - train_share) / median(side.bank.clone())
+        EPOCH_SAMPLES * train_share / median(&side.train)
+            + EPOCH_SAMPLES * (1.0 - train_share) / median(&side.bank)
     };
     println!(
         "bank of {n} candidates: ours {:.1} s{}; one epoch of {EPOCH_SAMPLES} samples (estimated from the rates): ours {:.0} s{}",

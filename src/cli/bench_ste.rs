@@ -83,8 +83,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             ("rank-paper", rank.papers_rank()),
         ]);
     for (name, params) in variants {
-        let t =
-            plumenet::bench::time_ste_update(&world.room, params, a.samples, a.batch, a.repeats)?;
+        let t = super::timing::time_ste_update(&world.room, params, a.samples, a.batch, a.repeats)?;
         println!(
             "  {:13} update {:7.2} ms   floor (read N x n once) {:6.2} ms   ratio {:5.1}x",
             name,
@@ -134,7 +133,7 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         ));
     }
     let time =
-        |w: &RoomBanks, p| plumenet::bench::time_ste_update(w, p, a.samples, a.batch, a.repeats);
+        |w: &RoomBanks, p| super::timing::time_ste_update(w, p, a.samples, a.batch, a.repeats);
     let mut nuisance = Vec::new();
     if !nuisances.is_empty() {
         let one = time(&world.room, bare)?;
@@ -194,11 +193,11 @@ pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
     );
     let mut sizes = Vec::new();
     for &n in &a.sizes {
-        let s = plumenet::bench::time_session_iteration(&room, config, n, 100)?;
+        let s = super::timing::time_session_iteration(&room, config, n, 100)?;
         println!("  at {n:6} readings: {:8.1} ms", s * 1e3);
         sizes.push(json!({"readings": n, "iteration_ms": s * 1e3}));
     }
-    let load = plumenet::bench::serve_load(&room, config, a.rate, a.seconds, a.iterate_every)?;
+    let load = super::timing::serve_load(&room, config, a.rate, a.seconds, a.iterate_every)?;
     let rt = &load.round_trips_s;
     let ms = |k: usize| rt.get(k).map_or(f64::NAN, |s| s * 1e3);
     println!(

@@ -250,14 +250,14 @@ pub fn time_conv_layer(shape: ConvShape, imp: ConvImpl, repeats: usize) -> (f64,
     };
     let time = |backward: bool| {
         run(backward);
-        let times = (0..repeats.max(1))
+        let times: Vec<f64> = (0..repeats.max(1))
             .map(|_| {
                 let start = Instant::now();
                 run(backward);
                 start.elapsed().as_secs_f64()
             })
             .collect();
-        crate::bench::median(times)
+        crate::stats::median(&times)
     };
     (time(false), time(true))
 }

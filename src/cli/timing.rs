@@ -14,18 +14,19 @@ use ndarray::Array1;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::error::Result;
-use crate::io;
-use crate::layout::Layout;
-use crate::physics::transport::Transport;
-use crate::physics::wind::WindField;
-use crate::service::{RemoteSession, serve_tcp};
-use crate::sim::episode::Steering;
-use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
-use crate::ste::posterior::prior_support;
-use crate::ste::protocol::{NoJournal, Protocol};
-use crate::ste::session::{Session, SessionConfig};
-use crate::ste::{Estimator, Sample, SteParams};
+use plumenet::Result;
+use plumenet::io;
+use plumenet::layout::Layout;
+use plumenet::physics::transport::Transport;
+use plumenet::physics::wind::WindField;
+use plumenet::service::{RemoteSession, serve_tcp};
+use plumenet::sim::episode::Steering;
+use plumenet::stats::median;
+use plumenet::ste::banks::{PRIOR_BAND_M, RoomBanks};
+use plumenet::ste::posterior::prior_support;
+use plumenet::ste::protocol::{NoJournal, Protocol};
+use plumenet::ste::session::{Session, SessionConfig};
+use plumenet::ste::{Estimator, Sample, SteParams};
 
 /// Median timings (seconds) of the physics bank on one layout.
 #[derive(Debug, Clone, PartialEq)]
@@ -53,13 +54,6 @@ impl BankTimings {
     }
 }
 
-/// Median of timings: the upper middle for an even count (a timing that was measured), `NaN`
-/// when there are none.
-pub fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-}
-
 fn timed<T>(f: impl FnOnce() -> Result<T>) -> Result<(T, f64)> {
     let start = Instant::now();
     let out = f()?;
@@ -70,7 +64,7 @@ fn timed<T>(f: impl FnOnce() -> Result<T>) -> Result<(T, f64)> {
 /// transport operator and candidates for export.
 ///
 /// # Errors
-/// Solver errors of the wind or transport solve; [`crate::error::Error::Parameter`] for a bad spacing.
+/// Solver errors of the wind or transport solve; [`plumenet::Error::Parameter`] for a bad spacing.
 pub fn time_bank(
     layout: &Layout,
     spacing_m: f64,
@@ -94,12 +88,12 @@ pub fn time_bank(
         bank_t.push(timed(|| transport.bank(&candidates))?.1);
         last = Some(transport);
     }
-    let transport = last.ok_or_else(|| crate::error::Error::Solver("no benchmark run".into()))?;
+    let transport = last.ok_or_else(|| plumenet::Error::Solver("no benchmark run".into()))?;
     let timings = BankTimings {
-        wind_s: median(wind_t),
-        factor_s: median(factor_t),
-        one_source_s: median(one_t),
-        bank_s: median(bank_t),
+        wind_s: median(&wind_t),
+        factor_s: median(&factor_t),
+        one_source_s: median(&one_t),
+        bank_s: median(&bank_t),
         candidates: candidates.len(),
         unknowns: transport.unknowns(),
         wind_steps: steps,
@@ -111,7 +105,7 @@ pub fn time_bank(
 /// plumenet's own solution (`plumenet_bank.npy`, unknowns x candidates) into `dir`.
 ///
 /// # Errors
-/// [`crate::error::Error::Source`] for a bad candidate, [`crate::error::Error::Io`] on write failure.
+/// [`plumenet::Error::Source`] for a bad candidate, [`plumenet::Error::Io`] on write failure.
 pub fn export_system(transport: &Transport, candidates: &[[f64; 2]], dir: &Path) -> Result<()> {
     io::create_dir_all(dir)?;
     let (mut rows, mut cols, mut vals) = (vec![], vec![], vec![]);
@@ -166,7 +160,7 @@ pub struct SteTimings {
 /// of the `N x total` estimate matrix once.
 ///
 /// # Errors
-/// [`crate::error::Error::Parameter`] for `batch` not below `total`, and the estimator's errors.
+/// [`plumenet::Error::Parameter`] for `batch` not below `total`, and the estimator's errors.
 pub fn time_ste_update(
     room: &RoomBanks,
     params: SteParams,
@@ -176,14 +170,14 @@ pub fn time_ste_update(
 ) -> Result<SteTimings> {
     let repeats = repeats.max(1);
     if batch == 0 || batch * repeats >= total {
-        return Err(crate::error::Error::Parameter(format!(
+        return Err(plumenet::Error::Parameter(format!(
             "{repeats} updates of {batch} readings must stay below the total {total}"
         )));
     }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
-        .map_err(|e| crate::error::Error::Parameter(format!("cannot build a thread pool: {e}")))?;
+        .map_err(|e| plumenet::Error::Parameter(format!("cannot build a thread pool: {e}")))?;
     let samples = synthetic_readings(&room.layout, total, 0.1, 0);
     let support = prior_support(&room.layout, room.sampler.candidates(), 0.07, PRIOR_BAND_M)?;
     let mut est = Estimator::with_banks(room.samplers(), &support, params)?;
@@ -217,8 +211,8 @@ pub fn time_ste_update(
         }
         Ok(SteTimings {
             params,
-            update_s: median(update),
-            floor_s: median(floor),
+            update_s: median(&update),
+            floor_s: median(&floor),
             candidates: n_cand,
             samples: total,
         })
@@ -249,7 +243,7 @@ pub fn synthetic_readings(layout: &Layout, count: usize, dt_s: f64, seed: u64) -
 /// `total - batch`, then planning), on all cores.
 ///
 /// # Errors
-/// [`crate::error::Error::Parameter`] for `batch` not below `total`, and the session's errors.
+/// [`plumenet::Error::Parameter`] for `batch` not below `total`, and the session's errors.
 pub fn time_session_iteration(
     room: &RoomBanks,
     config: SessionConfig,
@@ -257,7 +251,7 @@ pub fn time_session_iteration(
     batch: usize,
 ) -> Result<f64> {
     if batch == 0 || batch >= total {
-        return Err(crate::error::Error::Parameter(format!(
+        return Err(plumenet::Error::Parameter(format!(
             "an iteration of {batch} readings must stay below the total {total}"
         )));
     }
@@ -320,7 +314,7 @@ pub fn serve_load(
     });
     let at = rx
         .recv()
-        .map_err(|_| crate::error::Error::Parameter("the server did not start".into()))?;
+        .map_err(|_| plumenet::Error::Parameter("the server did not start".into()))?;
     let mut client = RemoteSession::connect(at)?;
     let readings = synthetic_readings(&room.layout, rate_hz * seconds, 1.0 / rate_hz as f64, 2);
     let clock = Instant::now();
