@@ -11,12 +11,9 @@
 //! `2 D_g t` is the Green's function with `D = D_w + D_g`. Single readings, by contrast, see a few
 //! narrow puffs at a time and are intermittent, like a real plume.
 //!
-//! The defaults (8 filaments/s, 5 cm initial width, 95% of `D` in the walk) were chosen with
-//! the MOX sensor in mind: readings 2-4 m downwind have a coefficient of variation near 1 and
-//! 5-25% of them are below a tenth of the mean (intermittent, as a real plume), while a
-//! sensor's long-run average stays within about 20% of the mean field. With 4 filaments/s and
-//! 97% walk the plume was so patchy (CV 2) that the sensor's nonlinearity pulled its average to
-//! a third of the mean near the source, a gap no plume model could bridge.
+//! The defaults (8 filaments/s, 5 cm initial width, 95% of `D` in the walk) make readings a few
+//! metres downwind intermittent while a sensor's long-run average stays near the mean field
+//! (the tests bound both).
 //!
 //! Two departures from the mean field are available for sim-to-real studies, both off by
 //! default: the wind direction may wander (an Ornstein-Uhlenbeck angle, with standard deviation
@@ -32,8 +29,7 @@
 //! the outlet. Gas never passes through an obstacle, however thin:
 //! - a filament's move whose path passes an obstacle is taken in sub-steps of at most half a
 //!   cell, each reflected off the obstacle face it crosses, so a long random-walk step cannot
-//!   jump over a wall one or two cells thick (checking only where the whole step lands let
-//!   filaments through 0.25 m walls);
+//!   jump over a wall one or two cells thick;
 //! - a kernel counts at a point only if the filament sees it: the segment between them crosses no
 //!   obstacle cell (sampled every half cell, so no wall a cell thick is missed). The images across
 //!   the side walls share their filament's line of sight;

@@ -31,10 +31,10 @@
 //! default arena the velocities at the default tolerance differ from a field converged to `1e-7`
 //! by less than `1e-4 U` (checked by a test).
 //!
-//! **Cost.** On the default 144 x 32 grid about 180 iterations of about 1 ms each, half of it the
-//! pressure back-substitution and most of the rest the residual and the line sweeps; this is the
-//! bulk of a new layout's bank (`plumenet bench`). Mass is conserved to round-off across every
-//! cross-section because each iteration ends with an exact projection.
+//! **Cost.** A few hundred iterations, each one back-substitution and the line sweeps; this is
+//! the bulk of a new layout's bank with the solver (`plumenet bench`, `docs/performance.md`).
+//! Mass is conserved to round-off across every cross-section because each iteration ends with
+//! an exact projection.
 
 use ndarray::{Array2, Array3, Axis};
 
