@@ -178,7 +178,7 @@ pub trait PlumeModel {
     fn bank(&self, layout: &Layout, candidates: &[[f64; 2]]) -> Result<PlumeBank>;
 
     /// The factor within which the model's mean concentrations are known, as the rank
-    /// feature's expected ranks take it ([`crate::ste::SteParams::model_rank_factor`]): 1, exact,
+    /// feature's expected ranks take it ([`crate::ste::params::RankParams::model_rank_factor`]): 1, exact,
     /// unless the model says otherwise.
     fn rank_factor(&self) -> f64 {
         1.0

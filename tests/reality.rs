@@ -6,6 +6,7 @@ use plumenet::physics::filament::{FilamentConfig, FilamentPlume};
 use plumenet::physics::wind::WindField;
 use plumenet::sim::survey::{fly, lawnmower};
 use plumenet::sim::{EpisodeConfig, Mismatch, Reality};
+use plumenet::ste::params::RankParams;
 use plumenet::ste::posterior::Sample;
 use plumenet::ste::robot::Occupancy;
 use plumenet::ste::{Baselines, Feature, SensorPreset, SteParams};
@@ -564,20 +565,26 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
     use plumenet::ste::replay::replay;
     let world = crate::ste::world();
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    assert!(!config.ste.clean_air_model_ties);
+    assert!(!config.ste.rank.clean_air_model_ties);
     let with = SteParams {
-        clean_air_model_ties: true,
+        rank: RankParams {
+            clean_air_model_ties: true,
+            ..config.ste.rank
+        },
         ..config.ste
     };
-    assert!(!with.papers_rank().clean_air_model_ties);
+    assert!(!with.papers_rank().rank.clean_air_model_ties);
     // The clean-air rank floor ties every estimate of a background slot below the readings'
     // clean-air group, the background's alone among them.
-    assert!(!config.ste.clean_air_rank_floor);
+    assert!(!config.ste.rank.clean_air_rank_floor);
     let floor = SteParams {
-        clean_air_rank_floor: true,
+        rank: RankParams {
+            clean_air_rank_floor: true,
+            ..config.ste.rank
+        },
         ..config.ste
     };
-    assert!(!floor.papers_rank().clean_air_rank_floor);
+    assert!(!floor.papers_rank().rank.clean_air_rank_floor);
     let survey = lawnmower(&world.room.layout, &config.robot, 0.5).unwrap();
     let recirculating = world
         .with_mismatch(Mismatch {
@@ -611,7 +618,10 @@ fn clean_air_model_ties_keep_a_rising_background_from_reading_as_a_plume_upwind(
         let plain = |floor: bool| {
             let ste = SteParams {
                 background_rise: 0.0,
-                clean_air_rank_floor: floor,
+                rank: RankParams {
+                    clean_air_rank_floor: floor,
+                    ..config.ste.rank
+                },
                 ..config.ste
             };
             replay(world.room.samplers(), ste, r, &samples)

@@ -11,6 +11,7 @@ use plumenet::layout::Layout;
 use plumenet::plume::PhysicsSolver;
 use plumenet::sim::{EpisodeConfig, World, run_episode};
 use plumenet::ste::banks::PRIOR_BAND_M;
+use plumenet::ste::params::RankParams;
 use plumenet::ste::posterior::{entropy, prior_support};
 use plumenet::ste::replay::{read_log, replay, thin};
 use plumenet::ste::robot::{Occupancy, path_length};
@@ -429,7 +430,10 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                 ..rank
             }),
             no_lag(SteParams {
-                model_rank_factor: 3.0,
+                rank: RankParams {
+                    model_rank_factor: 3.0,
+                    ..rank.rank
+                },
                 ..rank
             }),
             rank,
@@ -442,7 +446,7 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
         ]);
     for params in variants {
         let feature = params.feature;
-        let ours = feature == Feature::Rank && params.clean_air_ties;
+        let ours = feature == Feature::Rank && params.rank.clean_air_ties;
         let mut est =
             Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap();
         est.update(&samples).unwrap();
@@ -514,9 +518,9 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                         .into_iter()
                         .map(|c| if c < floor { 0.0 } else { c })
                         .collect();
-                    let r = params.rank_tolerance;
+                    let r = params.rank.rank_tolerance;
                     let mut e = features(&c);
-                    let r_model = params.model_rank_factor;
+                    let r_model = params.rank.model_rank_factor;
                     if ours && r_model > 1.0 {
                         // Expected ranks: every other estimate within the factor counts as
                         // below with a chance linear in the log-ratio.
@@ -870,7 +874,7 @@ fn rank_tolerance_finds_upwind_sources_from_downwind_starts() {
     ];
     let found = |rank_tolerance: f64| -> Vec<f64> {
         let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-        config.ste.rank_tolerance = rank_tolerance;
+        config.ste.rank.rank_tolerance = rank_tolerance;
         cases
             .iter()
             .map(|&(source, start, seed)| {
@@ -880,7 +884,7 @@ fn rank_tolerance_finds_upwind_sources_from_downwind_starts() {
             })
             .collect()
     };
-    let with = found(SteParams::for_feature(Feature::Rank).rank_tolerance);
+    let with = found(SteParams::for_feature(Feature::Rank).rank.rank_tolerance);
     let without = found(1.0);
     let within = |e: &[f64]| e.iter().filter(|&&e| e <= 1.0).count();
     assert!(within(&with) >= 6, "errors with the tolerance {with:?}");
@@ -1092,7 +1096,7 @@ fn clean_air_ties_group_noise_and_survive_gain_and_offset() {
         .collect();
     let run = |s: &[Sample]| {
         let params = SteParams::for_feature(Feature::Rank);
-        assert!(params.clean_air_ties && params.rank_tolerance > 1.0);
+        assert!(params.rank.clean_air_ties && params.rank.rank_tolerance > 1.0);
         let mut est =
             Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap();
         est.update(&s[..40]).unwrap();
@@ -1239,7 +1243,7 @@ fn drifting_clean_air_ties_follow_a_slow_drift() {
         assert!((drifting[k] - want).abs() < 1e-12, "reading {k}");
     }
     let mut params = SteParams::for_feature(Feature::Rank);
-    params.clean_air_window_s = Some(-1.0);
+    params.rank.clean_air_window_s = Some(-1.0);
     let err = Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap_err();
     assert!(err.to_string().contains("clean-air window"), "{err}");
 }

@@ -148,7 +148,7 @@ pub struct FeatureArgs {
     detection_floor: Option<f64>,
     /// Rank only: the factor within which the plume model's concentrations are trusted; the
     /// share of estimates within it adds to each rank's model error (1 turns it off).
-    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", default_value_t = SteParams::for_feature(Feature::Rank).rank_tolerance)]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", default_value_t = SteParams::for_feature(Feature::Rank).rank.rank_tolerance)]
     rank_tolerance: f64,
     /// Rank only: the factor within which the plume model's concentrations are known when
     /// ranked; each candidate's expected ranks under that uncertainty are compared (default:
@@ -221,13 +221,13 @@ impl FeatureArgs {
         if self.no_lag_model {
             p.sensor_lag_s = None;
         }
-        p.rank_tolerance = self.rank_tolerance;
+        p.rank.rank_tolerance = self.rank_tolerance;
         if let Some(factor) = self.model_rank_factor {
-            p.model_rank_factor = factor;
+            p.rank.model_rank_factor = factor;
         }
-        p.clean_air_window_s = self.clean_air_window;
-        p.clean_air_model_ties = self.clean_air_model_ties;
-        p.clean_air_rank_floor = self.clean_air_rank_floor;
+        p.rank.clean_air_window_s = self.clean_air_window;
+        p.rank.clean_air_model_ties = self.clean_air_model_ties;
+        p.rank.clean_air_rank_floor = self.clean_air_rank_floor;
         if let Some(a) = self.background_rise {
             p.background_rise = a;
         }

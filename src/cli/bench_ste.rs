@@ -10,6 +10,7 @@ use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::plume::PhysicsSolver;
 use plumenet::sim::{EpisodeConfig, World, run_episode};
+use plumenet::ste::params::RankParams;
 use plumenet::ste::{Feature, RoomBanks, SensorPreset, SteParams};
 
 use super::live::SessionArgs;
@@ -68,14 +69,20 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             (
                 "rank-expected",
                 SteParams {
-                    model_rank_factor: plumenet::surrogate::inference::RANK_FACTOR,
+                    rank: RankParams {
+                        model_rank_factor: plumenet::surrogate::inference::RANK_FACTOR,
+                        ..rank.rank
+                    },
                     ..rank
                 },
             ),
             (
                 "rank-ties",
                 SteParams {
-                    clean_air_model_ties: true,
+                    rank: RankParams {
+                        clean_air_model_ties: true,
+                        ..rank.rank
+                    },
                     ..rank
                 },
             ),

@@ -49,7 +49,7 @@ pub struct RoomBanks {
     /// [`RoomBanks::with_wind_scales`] or [`RoomBanks::with_wind_spreads`] was used.
     pub banks: Vec<Bank>,
     /// The plume model's [`PlumeModel::rank_factor`], the default of
-    /// [`SteParams::model_rank_factor`] for this room.
+    /// [`crate::ste::params::RankParams::model_rank_factor`] for this room.
     pub model_rank_factor: f64,
 }
 
@@ -87,10 +87,9 @@ impl RoomBanks {
     /// The estimator's default settings for `feature` over this room's banks: the feature's
     /// defaults ([`SteParams::for_feature`]) with the plume model's own rank factor.
     pub fn ste_params(&self, feature: Feature) -> SteParams {
-        SteParams {
-            model_rank_factor: self.model_rank_factor,
-            ..SteParams::for_feature(feature)
-        }
+        let mut params = SteParams::for_feature(feature);
+        params.rank.model_rank_factor = self.model_rank_factor;
+        params
     }
 
     /// The same room with the estimator marginalising over the model's wind speed: one bank

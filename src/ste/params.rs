@@ -67,47 +67,10 @@ pub struct SteParams {
     /// 1 ppm by default; rank's is 0.2 ppm, where Sensor II's clean-air tie band ends (three
     /// noise levels above clean air), to go with the lag in the sensor's response.
     pub detection_floor_ppm: f64,
-    /// Rank only: treat readings within three noise levels of the clean-air baseline as one
-    /// tie group (see [`crate::ste::posterior::clean_air_ties`]). On by default; the rank posterior is then invariant
-    /// under gain and offset of the readings, no longer under every increasing transform.
-    pub clean_air_ties: bool,
-    /// Rank only, with `clean_air_ties` and the background nuisance: an estimate that is the
-    /// background alone (its plume below the detection floor) and ranked within the readings'
-    /// clean-air tie group (below the group's rank `q`, its share of the readings) joins that
-    /// group, its rank raised to `q`: the sensor cannot order those readings, so neither is
-    /// the background's order among them compared. Off by default (and for records from
-    /// before this setting): it fixes a rising background on surveys but costs elsewhere
-    /// (`docs/ablations.md`).
-    #[serde(default)]
-    pub clean_air_model_ties: bool,
-    /// Rank only, with `clean_air_ties` and the background nuisance: in a background slot,
-    /// every estimate ranked within the readings' clean-air tie group (below the group's rank
-    /// `q`, its share of the readings) joins that group, whatever its value (the model ties'
-    /// estimates of the background alone among them): the sensor cannot order the lowest `q`
-    /// of the readings, so the slot's lowest `q` of the estimates are not compared by their
-    /// order either. The slot without a background is left as it is (flooring it too broke
-    /// the planner's paths). Off by default (and for records from before this setting): it
-    /// helps surveys in unseen rooms and costs in the paper arena
-    /// (`docs/ablations.md`).
-    #[serde(default)]
-    pub clean_air_rank_floor: bool,
-    /// Rank only, with `clean_air_ties`: the length (s) of a centred window in which the
-    /// clean-air baseline is taken, so that it follows a drifting baseline (sensor drift, gas
-    /// accumulating in the room); readings above it count by their excess over it. `None`
-    /// takes one baseline over the whole run.
-    pub clean_air_window_s: Option<f64>,
-    /// Rank only: the factor `r >= 1` within which the plume model's concentrations are
-    /// trusted; the share of estimates within that factor of each estimate is added to its
-    /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
-    pub rank_tolerance: f64,
-    /// Rank only: the factor `r_e >= 1` within which the plume model's concentrations are
-    /// known when they are ranked; each candidate's *expected* ranks under that uncertainty
-    /// are compared with the readings' (see the module doc). 1 (the default here, and what
-    /// records from before this setting read back as) compares its exact ranks; the CLI takes
-    /// the plume model's own factor ([`crate::plume::PlumeModel::rank_factor`]: 1 for the
-    /// solver, 3 for PlumeNet).
-    #[serde(default = "exact_model_ranks")]
-    pub model_rank_factor: f64,
+    /// The rank feature's own settings (unused by the other features), in the same JSON
+    /// object as the rest.
+    #[serde(flatten)]
+    pub rank: RankParams,
     /// A background of recirculated gas rising during the run, as a nuisance: the model's
     /// concentrations plus `a * (1 - exp(-t / background_time_s))` (t from the first reading),
     /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
@@ -131,13 +94,61 @@ pub struct SteParams {
     pub wander_deg: f64,
 }
 
+/// The rank feature's own settings: how readings near clean air tie, how far the plume model's
+/// concentrations are trusted when ranked, and how the background nuisance's faintest
+/// estimates are ranked.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RankParams {
+    /// Treat readings within three noise levels of the clean-air baseline as one
+    /// tie group (see [`crate::ste::posterior::clean_air_ties`]). On by default; the rank posterior is then invariant
+    /// under gain and offset of the readings, no longer under every increasing transform.
+    pub clean_air_ties: bool,
+    /// With `clean_air_ties` and the background nuisance: an estimate that is the
+    /// background alone (its plume below the detection floor) and ranked within the readings'
+    /// clean-air tie group (below the group's rank `q`, its share of the readings) joins that
+    /// group, its rank raised to `q`: the sensor cannot order those readings, so neither is
+    /// the background's order among them compared. Off by default (and for records from
+    /// before this setting): it fixes a rising background on surveys but costs elsewhere
+    /// (`docs/ablations.md`).
+    #[serde(default)]
+    pub clean_air_model_ties: bool,
+    /// With `clean_air_ties` and the background nuisance: in a background slot,
+    /// every estimate ranked within the readings' clean-air tie group (below the group's rank
+    /// `q`, its share of the readings) joins that group, whatever its value (the model ties'
+    /// estimates of the background alone among them): the sensor cannot order the lowest `q`
+    /// of the readings, so the slot's lowest `q` of the estimates are not compared by their
+    /// order either. The slot without a background is left as it is (flooring it too broke
+    /// the planner's paths). Off by default (and for records from before this setting): it
+    /// helps surveys in unseen rooms and costs in the paper arena
+    /// (`docs/ablations.md`).
+    #[serde(default)]
+    pub clean_air_rank_floor: bool,
+    /// With `clean_air_ties`: the length (s) of a centred window in which the
+    /// clean-air baseline is taken, so that it follows a drifting baseline (sensor drift, gas
+    /// accumulating in the room); readings above it count by their excess over it. `None`
+    /// takes one baseline over the whole run.
+    pub clean_air_window_s: Option<f64>,
+    /// the factor `r >= 1` within which the plume model's concentrations are
+    /// trusted; the share of estimates within that factor of each estimate is added to its
+    /// model error (see the module doc). 1 turns it off (the paper's constant sigmas).
+    pub rank_tolerance: f64,
+    /// the factor `r_e >= 1` within which the plume model's concentrations are
+    /// known when they are ranked; each candidate's *expected* ranks under that uncertainty
+    /// are compared with the readings' (see the module doc). 1 (the default here, and what
+    /// records from before this setting read back as) compares its exact ranks; the CLI takes
+    /// the plume model's own factor ([`crate::plume::PlumeModel::rank_factor`]: 1 for the
+    /// solver, 3 for PlumeNet).
+    #[serde(default = "exact_model_ranks")]
+    pub model_rank_factor: f64,
+}
+
 /// The lag in the concentration itself: what records from before
 /// [`SteParams::sensor_lag_exponent`] read back as.
 fn concentration_lag() -> f64 {
     1.0
 }
 
-/// Exact model ranks: the default [`SteParams::model_rank_factor`].
+/// Exact model ranks: the default [`RankParams::model_rank_factor`].
 fn exact_model_ranks() -> f64 {
     1.0
 }
@@ -166,12 +177,14 @@ impl SteParams {
                 Feature::Rank => RANK_DETECTION_FLOOR_PPM,
                 _ => DETECTION_FLOOR_PPM,
             },
-            clean_air_ties: true,
-            clean_air_model_ties: false,
-            clean_air_rank_floor: false,
-            clean_air_window_s: None,
-            rank_tolerance: RANK_TOLERANCE,
-            model_rank_factor: 1.0,
+            rank: RankParams {
+                clean_air_ties: true,
+                clean_air_model_ties: false,
+                clean_air_rank_floor: false,
+                clean_air_window_s: None,
+                rank_tolerance: RANK_TOLERANCE,
+                model_rank_factor: 1.0,
+            },
             background_rise: match feature {
                 Feature::Rank => BACKGROUND_RISE,
                 _ => 0.0,
@@ -206,11 +219,14 @@ impl SteParams {
     /// ([`SteParams::lag_in_concentration`]; other features are unaffected).
     pub fn papers_rank(self) -> Self {
         Self {
-            clean_air_ties: false,
-            clean_air_model_ties: false,
-            clean_air_rank_floor: false,
-            rank_tolerance: 1.0,
-            model_rank_factor: 1.0,
+            rank: RankParams {
+                clean_air_ties: false,
+                clean_air_model_ties: false,
+                clean_air_rank_floor: false,
+                rank_tolerance: 1.0,
+                model_rank_factor: 1.0,
+                ..self.rank
+            },
             background_rise: 0.0,
             wander_deg: 0.0,
             ..self.lag_in_concentration()
@@ -242,12 +258,13 @@ impl SteParams {
             )));
         }
         if self
+            .rank
             .clean_air_window_s
             .is_some_and(|w| !(w.is_finite() && w > 0.0))
         {
             return Err(Error::Parameter(format!(
                 "the clean-air window must be a positive number of seconds, got {:?}",
-                self.clean_air_window_s
+                self.rank.clean_air_window_s
             )));
         }
         if !(self.sensor_lag_exponent.is_finite()
@@ -259,16 +276,16 @@ impl SteParams {
                 self.sensor_lag_exponent
             )));
         }
-        if !(self.rank_tolerance.is_finite() && self.rank_tolerance >= 1.0) {
+        if !(self.rank.rank_tolerance.is_finite() && self.rank.rank_tolerance >= 1.0) {
             return Err(Error::Parameter(format!(
                 "rank tolerance must be a factor of at least 1, got {}",
-                self.rank_tolerance
+                self.rank.rank_tolerance
             )));
         }
-        if !(self.model_rank_factor.is_finite() && self.model_rank_factor >= 1.0) {
+        if !(self.rank.model_rank_factor.is_finite() && self.rank.model_rank_factor >= 1.0) {
             return Err(Error::Parameter(format!(
                 "the model's rank factor must be at least 1, got {}",
-                self.model_rank_factor
+                self.rank.model_rank_factor
             )));
         }
         if !(self.background_rise.is_finite() && self.background_rise >= 0.0) {

@@ -14,8 +14,8 @@
 //! Before the features are taken, each estimated series passes through the sensor's response
 //! and recovery ([`SteParams::sensor_lag_s`], acting on the estimates raised to
 //! [`SteParams::sensor_lag_exponent`]) and values below [`SteParams::detection_floor_ppm`]
-//! become zero. For rank, `w_i` is the rank tolerance ([`SteParams::rank_tolerance`]), `e_i`
-//! the expected rank under the model's own uncertainty ([`SteParams::model_rank_factor`]),
+//! become zero. For rank, `w_i` is the rank tolerance ([`crate::ste::params::RankParams::rank_tolerance`]), `e_i`
+//! the expected rank under the model's own uncertainty ([`crate::ste::params::RankParams::model_rank_factor`]),
 //! readings near clean air tie ([`clean_air_ties`]), and a rising background is marginalised
 //! ([`SteParams::background_rise`]); the paper's form is [`SteParams::papers_rank`].
 //! `docs/method.md` explains each term and the ablation behind it.
@@ -341,9 +341,9 @@ impl Estimator {
         self.edf.extend(&values);
         self.readings.extend_from_slice(&values);
         self.times.extend(samples.iter().map(|s| s.t));
-        if self.params.clean_air_ties && self.params.feature == Feature::Rank {
+        if self.params.rank.clean_air_ties && self.params.feature == Feature::Rank {
             let mut all = self.readings.clone();
-            match self.params.clean_air_window_s {
+            match self.params.rank.clean_air_window_s {
                 None => clean_air_ties(&mut all),
                 Some(w) => drifting_clean_air_ties(&mut all, &self.times, w),
             }
@@ -357,20 +357,23 @@ impl Estimator {
         let n = self.measured.len() as f64;
         let factor = -0.5 * n / (n + 1.0);
         let variance = self.params.sigmas.variance();
-        let (r, r_model) = (self.params.rank_tolerance, self.params.model_rank_factor);
+        let (r, r_model) = (
+            self.params.rank.rank_tolerance,
+            self.params.rank.model_rank_factor,
+        );
         let within = self.params.feature == Feature::Rank && (r > 1.0 || r_model > 1.0);
         let m = self.measured.features();
         // Clean-air model ties: in a background slot, an estimate that is the background alone
         // (its plume below the floor) and ranked below the readings' clean-air tie group joins
         // that group (its rank raised to the group's, the readings' lowest).
         let tied = self.params.feature == Feature::Rank
-            && self.params.clean_air_ties
-            && self.params.clean_air_model_ties;
+            && self.params.rank.clean_air_ties
+            && self.params.rank.clean_air_model_ties;
         // The clean-air rank floor: in a background slot, every estimate ranked below that
         // group joins it.
         let floored = self.params.feature == Feature::Rank
-            && self.params.clean_air_ties
-            && self.params.clean_air_rank_floor;
+            && self.params.rank.clean_air_ties
+            && self.params.rank.clean_air_rank_floor;
         let q = m.iter().copied().fold(f32::INFINITY, f32::min);
         let rises: Vec<f64> = match tied {
             true => self.times.iter().map(|&t| rise(t)).collect(),
