@@ -1023,3 +1023,53 @@ fn short_help_is_for_users_and_long_help_holds_the_knobs() {
         assert!(long.contains(heading), "localize --help lacks {heading}");
     }
 }
+
+/// A likelihood setting out of range is refused before the plume bank is computed: no bank
+/// reaches the cache, and the message names the setting and its value.
+#[test]
+fn bad_likelihood_settings_fail_before_the_bank() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let cache = cache.to_str().unwrap();
+    let log = tmp.path().join("log.csv");
+    std::fs::write(&log, "t,x,y,value\n0.1,15,1,1.0\n0.2,14.9,1,1.1\n").unwrap();
+    let log = log.to_str().unwrap();
+    let tolerance = "rank tolerance must be a factor of at least 1, got 0.5";
+    let factor = "the model's rank factor must be at least 1, got 0.5";
+    for (args, needle) in [
+        (
+            &["localize", "--source", "4.5,2.5", "--rank-tolerance", "0.5"][..],
+            tolerance,
+        ),
+        (
+            &["replay", "--log", log, "--model-rank-factor", "0.5"][..],
+            factor,
+        ),
+        (
+            &["experiment", "--runs", "1", "--rank-tolerance", "0.5"][..],
+            tolerance,
+        ),
+        (&["serve", "--rank-tolerance", "0.5"][..], tolerance),
+    ] {
+        let mut all = args.to_vec();
+        all.extend(["--cache-dir", cache]);
+        let out = plumenet(&all);
+        assert_clean_failure(&out, needle);
+        assert!(
+            !std::path::Path::new(cache).exists(),
+            "{args:?} computed a bank"
+        );
+    }
+    let out = plumenet(&[
+        "localize",
+        "--solver",
+        "--source",
+        "4.5,2.5",
+        "--model-rank-factor",
+        "0.5",
+        "--cache-dir",
+        cache,
+    ]);
+    assert_clean_failure(&out, factor);
+    assert!(!std::path::Path::new(cache).exists());
+}

@@ -59,29 +59,14 @@ pub struct PlumeArgs {
 }
 
 impl PlumeArgs {
-    /// The layout's banks for the chosen model; also returns the model's name for reports.
-    pub fn room(&self, layout: Layout) -> Result<(RoomBanks, String)> {
-        let (room, name, note) = self.room_of(layout, self.solver)?;
-        println!("{note}");
-        Ok((room, name))
+    /// The chosen plume model: the physics solver with `--solver`, else the PlumeNet model.
+    pub(super) fn model(&self) -> Result<Box<dyn PlumeModel>> {
+        self.model_of(self.solver)
     }
 
-    /// [`PlumeArgs::room`] with its note on standard error (standard output being a
-    /// protocol's).
-    pub fn room_quietly(&self, layout: Layout) -> Result<(RoomBanks, String)> {
-        let (room, name, note) = self.room_of(layout, self.solver)?;
-        eprintln!("{note}");
-        Ok((room, name))
-    }
-
-    /// The banks of the physics solver (`solver`) or the chosen PlumeNet model, its name, and
-    /// a note on the bank for the user.
-    pub(super) fn room_of(
-        &self,
-        layout: Layout,
-        solver: bool,
-    ) -> Result<(RoomBanks, String, String)> {
-        let model: Box<dyn PlumeModel> = if solver {
+    /// The physics solver (`solver`) or the chosen PlumeNet model.
+    pub(super) fn model_of(&self, solver: bool) -> Result<Box<dyn PlumeModel>> {
+        Ok(if solver {
             Box::new(PhysicsSolver)
         } else {
             Box::new(Surrogate::load(&self.model).with_context(|| {
@@ -90,12 +75,43 @@ impl PlumeArgs {
                     self.model.display()
                 )
             })?)
-        };
+        })
+    }
+
+    /// The layout's banks for the chosen model and the estimator's settings for `feature`,
+    /// checked before the banks are computed; also returns the model's name for reports.
+    /// The note on the bank goes to standard output, or to standard error when `quiet`
+    /// (standard output being a protocol's).
+    pub(super) fn room(
+        &self,
+        layout: Layout,
+        features: &FeatureArgs,
+        feature: Feature,
+        quiet: bool,
+    ) -> Result<(RoomBanks, SteParams, String)> {
+        let model = self.model()?;
+        let params = features.params(feature, model.rank_factor())?;
+        let (room, note) = self.room_of(layout, model.as_ref())?;
+        if quiet {
+            eprintln!("{note}");
+        } else {
+            println!("{note}");
+        }
+        Ok((room, params, model.name()))
+    }
+
+    /// The banks of `model` over the layout's candidates (through the cache, with the wind
+    /// scales and spreads asked for), and a note on the bank for the user.
+    pub(super) fn room_of(
+        &self,
+        layout: Layout,
+        model: &dyn PlumeModel,
+    ) -> Result<(RoomBanks, String)> {
         let cache = (!self.no_cache).then_some(self.cache_dir.as_path());
-        let (room, hit) = RoomBanks::build(layout, model.as_ref(), self.spacing, cache)?;
+        let (room, hit) = RoomBanks::build(layout, model, self.spacing, cache)?;
         // The defaults (scale 1, spread 0) keep the layout's own bank.
         let room = room
-            .with_wind_scales(model.as_ref(), &self.wind_scales, cache)?
+            .with_wind_scales(model, &self.wind_scales, cache)?
             .with_wind_spreads(&self.wind_spreads)?;
         let note = format!(
             "plume model {}: {} candidates{}",
@@ -103,7 +119,7 @@ impl PlumeArgs {
             room.sampler.len(),
             if hit { " (bank from cache)" } else { "" }
         );
-        Ok((room, model.name(), note))
+        Ok((room, note))
     }
 
     /// The candidate spacing (m).
@@ -203,10 +219,22 @@ pub struct FeatureArgs {
 }
 
 impl FeatureArgs {
-    /// The estimator settings for a feature over a room's banks (whose plume model gives the
-    /// default model rank factor) with these overrides.
-    pub fn params(&self, feature: Feature, room: &RoomBanks) -> SteParams {
-        let mut p = room.ste_params(feature);
+    /// The estimator settings for a feature with these overrides, checked: the one place the
+    /// command line turns its flags and the defaults into settings. `rank_factor` is the plume
+    /// model's own ([`PlumeModel::rank_factor`]), the default of `--model-rank-factor`.
+    ///
+    /// # Errors
+    /// A setting out of its range ([`SteParams::check`]), named with its value.
+    pub fn params(&self, feature: Feature, rank_factor: f64) -> Result<SteParams> {
+        let params = self.resolve(feature, rank_factor);
+        params.check()?;
+        Ok(params)
+    }
+
+    /// [`FeatureArgs::params`] unchecked (for settings already checked once).
+    pub fn resolve(&self, feature: Feature, rank_factor: f64) -> SteParams {
+        let mut p = SteParams::for_feature(feature);
+        p.rank.model_rank_factor = rank_factor;
         let d = Sigmas::default_for(feature);
         p.sigmas = Sigmas {
             model: self.sigma_model.unwrap_or(d.model),

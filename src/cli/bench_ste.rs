@@ -192,8 +192,7 @@ pub struct BenchServeArgs {
 }
 
 pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
-    let (room, model) = a.session.room()?;
-    let config = a.session.config(&room);
+    let (room, config, model) = a.session.room()?;
     println!(
         "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
         room.sampler.len()

@@ -38,29 +38,27 @@ pub struct SessionArgs {
 }
 
 impl SessionArgs {
-    /// The session's settings over a room's banks.
-    pub(super) fn config(&self, room: &RoomBanks) -> plumenet::ste::session::SessionConfig {
+    /// The layout's banks, the session's settings (checked before the banks are computed)
+    /// and the model's name; notes go to standard error (standard output may be a protocol's).
+    pub(super) fn room(
+        &self,
+    ) -> Result<(RoomBanks, plumenet::ste::session::SessionConfig, String)> {
+        let layout = Layout::load(&self.layout)?;
+        let (room, params, model) =
+            self.plume
+                .room(layout, &self.features, self.feature.into(), true)?;
         let mut config = self
             .run
-            .config(
-                self.features.params(self.feature.into(), room),
-                SensorPreset::SensorII,
-            )
+            .config(params, SensorPreset::SensorII)
             .session(self.seed);
         config.max_readings = self.max_readings;
-        config
-    }
-
-    /// The layout's world and the model's name; notes go to standard error (standard output
-    /// may be a protocol's).
-    pub(super) fn room(&self) -> Result<(RoomBanks, String)> {
-        self.plume.room_quietly(Layout::load(&self.layout)?)
+        Ok((room, config, model))
     }
 
     /// A fresh session, with the layout's and the model's names.
     fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
-        let (room, model) = self.room()?;
-        let session = plumenet::ste::session::Session::new(&room, self.config(&room))?;
+        let (room, config, model) = self.room()?;
+        let session = plumenet::ste::session::Session::new(&room, config)?;
         Ok((session, layout_name(&self.layout), model))
     }
 }

@@ -55,12 +55,10 @@ pub struct LocalizeArgs {
 pub fn localize(a: LocalizeArgs) -> Result<()> {
     let (layout, source) = a.trial.layout_and_source()?;
     let mismatch = a.reality.mismatch()?;
-    let (room, model_name) = a.plume.room(layout)?;
-    let world = World::new(room)?.with_mismatch(mismatch)?;
     let feature = Feature::from(a.feature);
-    let config = a
-        .run
-        .config(a.features.params(feature, &world.room), a.sensor.into());
+    let (room, params, model_name) = a.plume.room(layout, &a.features, feature, false)?;
+    let world = World::new(room)?.with_mismatch(mismatch)?;
+    let config = a.run.config(params, a.sensor.into());
     let start = a.trial.start(&world.room.layout, &config.robot, a.seed)?;
     let keep_posteriors = a.png_dir.is_some() || a.html.is_some();
     let episode = run_episode(&world, &config, source, start, a.seed, keep_posteriors)?;
@@ -183,9 +181,8 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
     if let Some([x, y]) = source {
         layout.check_source(x, y)?;
     }
-    let (room, model_name) = a.plume.room(layout)?;
     let feature = Feature::from(a.feature);
-    let params = a.features.params(feature, &room);
+    let (room, params, model_name) = a.plume.room(layout, &a.features, feature, false)?;
     let steps = if a.html.is_some() {
         a.html_steps as usize
     } else {

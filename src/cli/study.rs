@@ -251,6 +251,16 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         (None, None) => default_layout.iter().map(PathBuf::as_path).collect(),
     };
     let sites = load_sites(&files, a.rooms_of.as_deref(), a.rooms)?;
+    // Every model is loaded, and every feature's settings checked with it, before any bank.
+    let loaded = models
+        .iter()
+        .map(|&name| a.plume.model_of(name == "solver"))
+        .collect::<Result<Vec<_>>>()?;
+    for model in &loaded {
+        for &feature in &features {
+            a.overrides.params(feature, model.rank_factor())?;
+        }
+    }
     let study = Study {
         sites: &sites,
         models: &models,
@@ -262,12 +272,16 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     };
     let bar = super::progress_bar(study.total_runs(), "runs");
     let rows = study.run(
-        |layout, model| {
-            let (room, _, note) = a.plume.room_of(layout.clone(), model == "solver")?;
+        |layout, name| {
+            let k = models.iter().position(|&m| m == name).unwrap_or(0);
+            let (room, note) = a.plume.room_of(layout.clone(), loaded[k].as_ref())?;
             super::say(&bar, note);
             Ok::<_, anyhow::Error>(room)
         },
-        |f, s, room| a.run.config(a.overrides.params(f, room), s),
+        |f, s, room| {
+            a.run
+                .config(a.overrides.resolve(f, room.model_rank_factor), s)
+        },
         || bar.inc(1),
     )?;
     bar.finish_and_clear();

@@ -233,7 +233,11 @@ impl SteParams {
         }
     }
 
-    pub(crate) fn check(&self) -> Result<()> {
+    /// Checks every setting against its range (the estimator checks again when it is built).
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] naming the first setting out of range and its value.
+    pub fn check(&self) -> Result<()> {
         self.features.check()?;
         let s = [self.sigmas.model, self.sigmas.measurement];
         if s.iter().any(|v| !v.is_finite() || *v < 0.0) || self.sigmas.variance() <= 0.0 {
