@@ -26,6 +26,7 @@ mod args;
 mod bench_net;
 mod bench_ste;
 mod live;
+mod net_timing;
 mod run;
 mod study;
 mod timing;

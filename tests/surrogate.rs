@@ -4,14 +4,12 @@
 
 use std::path::Path;
 
-use ndarray::{Array4, ArrayD};
 use plumenet::Error;
 use plumenet::dataset::{self, Distribution, GenerateConfig, GenerateParams};
 use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
-use plumenet::surrogate::bench::{export_reference, forward_macs, time_bank, time_training};
 use plumenet::surrogate::config::EpochLoss;
-use plumenet::surrogate::model::ConvImpl;
+
 use plumenet::surrogate::saved::{load_weights, weights_bytes, weights_digest};
 use plumenet::surrogate::{
     PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train,
@@ -309,80 +307,6 @@ fn both_plume_models_give_the_same_bank_layout() {
             }
         }
     }
-}
-
-#[test]
-fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tiny_dataset(&tmp.path().join("data"));
-    let dir = tmp.path().join("model");
-    let config = tiny_config(1);
-    train(&data, &config, &dir, &mut |_| ()).unwrap();
-    // The export holds one pass (the room as it is), which is the bank of a one-pass model;
-    // trained models average two (`mirror_averaging_is_the_mean_of_the_room_and_its_mirror`).
-    assert_eq!(Surrogate::load(&dir).unwrap().views(), 2);
-    let model = with_mirror_average(&dir, &tmp.path().join("one-pass"), false);
-    let layout = Layout::from_json(BLOCKED).unwrap();
-    let candidates = &layout.candidates(0.5).unwrap()[..5];
-    let out = tmp.path().join("export");
-    let tensors = export_reference(&model, &layout, candidates, &out).unwrap();
-    // Weight and bias of 2 encoder convolutions, 1 transposed convolution, 1 decoder
-    // convolution and the head.
-    assert_eq!(tensors, 10);
-
-    // Burn's raw outputs, transformed back, are the bank.
-    let raw: Array4<f32> = plumenet::io::read_npy(&out.join("outputs.npy")).unwrap();
-    let inputs: Array4<f32> = plumenet::io::read_npy(&out.join("inputs.npy")).unwrap();
-    assert_eq!(inputs.dim(), (5, 7, 16, 72));
-    // The Peclet plane, U dx / D inside the room, and the solved wind relative to the inlet's
-    // (uniform far upwind of the obstacle).
-    assert!((inputs[[0, 3, 5, 5]] - 0.75 * 0.25 / 0.05).abs() < 1e-6);
-    assert!(
-        (inputs[[0, 4, 8, 1]] - 1.0).abs() < 0.05,
-        "{}",
-        inputs[[0, 4, 8, 1]]
-    );
-    assert!(inputs[[0, 5, 8, 1]].abs() < 0.05);
-    let bank = model.predict_many(&layout, candidates).unwrap();
-    let norm = model.saved().normalization;
-    for ((n, _, j, i), &v) in raw.indexed_iter() {
-        let expected = if layout.is_solid(j, i) {
-            0.0
-        } else {
-            norm.inverse(v, layout.wind_speed())
-        };
-        assert_eq!(bank[[n, j, i]].to_bits(), expected.to_bits());
-    }
-
-    // Brute force: every convolution weight times the pixels of the level it writes.
-    let levels = config.model.filters.len();
-    let mut macs = 0u64;
-    for entry in std::fs::read_dir(out.join("weights")).unwrap() {
-        let path = entry.unwrap().path();
-        let name = path.file_stem().unwrap().to_str().unwrap().to_string();
-        if !name.ends_with(".weight") {
-            continue;
-        }
-        let w: ArrayD<f32> = plumenet::io::read_npy(&path).unwrap();
-        let index = |k: usize| name.split('.').nth(k).unwrap().parse::<usize>().unwrap();
-        let level = match name.split('.').next().unwrap() {
-            "encoders" => index(1),
-            "decoders" | "ups" => levels - 2 - index(1),
-            _ => 0,
-        };
-        let pixels = ((16 >> level) * (72 >> level)) as u64;
-        // A 2x2 stride-2 transposed convolution touches each output pixel with one tap.
-        let taps = if name.starts_with("ups") { 4 } else { 1 };
-        macs += w.len() as u64 * pixels / taps;
-    }
-    assert_eq!(macs, forward_macs(&config.model, [16, 72]));
-
-    assert!(time_bank(&model, &layout, candidates, ConvImpl::Own).unwrap() > 0.0);
-    assert!(time_training(&model, &layout, candidates, (2, 1), ConvImpl::Burn).unwrap() > 0.0);
-    assert!(matches!(
-        time_training(&model, &layout, candidates, (6, 1), ConvImpl::Own),
-        Err(Error::Parameter(_))
-    ));
 }
 
 /// A dataset of small rooms of several sizes, speeds and wind directions (coarse cells).

@@ -9,13 +9,13 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde_json::{Value, json};
 
-use plumenet::io;
-use plumenet::layout::Layout;
-use plumenet::stats::median;
-use plumenet::surrogate::bench::{
+use super::net_timing::{
     conv_layers, cpu_peak, export_reference, forward_macs, time_bank, time_conv_layer,
     time_training,
 };
+use plumenet::io;
+use plumenet::layout::Layout;
+use plumenet::stats::median;
 use plumenet::surrogate::conv::kernel::Isa;
 use plumenet::surrogate::model::ConvImpl;
 use plumenet::surrogate::{Surrogate, TrainingConfig};

@@ -2,11 +2,10 @@
 //! architecture ([`model`]) with its own convolution operation and kernels ([`conv`]), input
 //! encoding and batches ([`data`]), the definition of a training run ([`config`]), training
 //! ([`training`]), the files of a trained model ([`saved`]), loading, prediction and banks
-//! ([`inference`]), accuracy ([`eval`]), and throughput against PyTorch ([`bench`](mod@bench)). Tensors meet
-//! ndarray or plain slices only in [`data`], [`conv`], [`saved`], [`inference`] and [`bench`](mod@bench).
+//! ([`inference`]), accuracy ([`eval`]). Tensors meet
+//! ndarray or plain slices only in [`data`], [`conv`], [`saved`] and [`inference`].
 
 pub mod backend;
-pub mod bench;
 pub mod config;
 pub mod conv;
 pub mod data;

@@ -15,17 +15,17 @@ use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
 use ndarray::{Array2, ArrayD, IxDyn};
 
-use super::config::TrainingConfig;
-use super::conv::kernel::ConvShape;
-use super::conv::{burn_conv2d_same, conv2d_same};
-use super::inference::Surrogate;
-use super::model::{ConvImpl, PlumeNetConfig};
-use super::saved::named_tensors;
-use super::training::masked_mse;
-use crate::error::{Error, Result};
-use crate::frame::Frame;
-use crate::io;
-use crate::layout::Layout;
+use plumenet::error::{Error, Result};
+use plumenet::frame::Frame;
+use plumenet::io;
+use plumenet::layout::Layout;
+use plumenet::surrogate::config::TrainingConfig;
+use plumenet::surrogate::conv::kernel::ConvShape;
+use plumenet::surrogate::conv::{burn_conv2d_same, conv2d_same};
+use plumenet::surrogate::inference::Surrogate;
+use plumenet::surrogate::model::{ConvImpl, PlumeNetConfig};
+use plumenet::surrogate::saved::named_tensors;
+use plumenet::surrogate::training::loss;
 
 /// Multiply-adds of one forward pass of `config` on an `[h, w]` grid (convolutions, transposed
 /// convolutions and the 1x1 head; pooling, ReLU and concatenation are not counted).
@@ -137,7 +137,7 @@ pub fn time_training(
         )));
     }
     let [h, w] = model.grid(layout);
-    let device = super::backend::device().autodiff();
+    let device = plumenet::surrogate::backend::device().autodiff();
     let input = model.inputs(layout, &sources[..batch])?.concat();
     let target = model.forward_raw(input.clone(), [h, w])?;
     let free: Vec<f32> = solid_plane(layout, [h, w])?
@@ -163,9 +163,15 @@ pub fn time_training(
         if step == 2 {
             start = Instant::now();
         }
-        let loss = masked_mse(net.forward_with(x.clone(), imp), y.clone(), free.clone());
-        std::hint::black_box(loss.clone().into_scalar::<f32>());
-        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        // The masked MSE of the target: `defaults` has no relative-L2 term.
+        let step_loss = loss(
+            &defaults,
+            net.forward_with(x.clone(), imp),
+            y.clone(),
+            free.clone(),
+        );
+        std::hint::black_box(step_loss.clone().into_scalar::<f32>());
+        let grads = GradientsParams::from_grads(step_loss.backward(), &net);
         net = optim.step(defaults.learning_rate, net, grads);
     }
     Ok(start.elapsed().as_secs_f64() / steps as f64)
@@ -215,7 +221,7 @@ pub fn conv_layers(
 /// input, the weights and the bias), each the median of `repeats` after one warm-up, with our
 /// convolution or Burn's.
 pub fn time_conv_layer(shape: ConvShape, imp: ConvImpl, repeats: usize) -> (f64, f64) {
-    let device = super::backend::device().autodiff();
+    let device = plumenet::surrogate::backend::device().autodiff();
     let ConvShape {
         batch,
         cin,
@@ -257,7 +263,7 @@ pub fn time_conv_layer(shape: ConvShape, imp: ConvImpl, repeats: usize) -> (f64,
                 start.elapsed().as_secs_f64()
             })
             .collect();
-        crate::stats::median(&times)
+        plumenet::stats::median(&times)
     };
     (time(false), time(true))
 }
@@ -306,4 +312,156 @@ pub fn cpu_peak() -> Option<CpuPeak> {
         mhz,
         flops_per_cycle: 2.0 * 2.0 * lanes,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use ndarray::{Array4, ArrayD};
+    use plumenet::dataset::{self, Distribution, GenerateConfig, GenerateParams};
+    use plumenet::surrogate::{TrainingData, train};
+
+    use super::*;
+
+    const COARSE: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#;
+
+    /// The coarse arena with one obstacle.
+    const BLOCKED: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
+    "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#;
+
+    fn tiny_dataset(dir: &Path) -> TrainingData {
+        let config = GenerateConfig {
+            distribution: Distribution::Base {
+                base: Layout::from_json(COARSE).unwrap().spec().clone(),
+                params: GenerateParams::default(),
+            },
+            layouts: 3,
+            sources_per_layout: 4,
+            seed: 3,
+            shard: None,
+        };
+        dataset::generate(&config, dir, &|| ()).unwrap();
+        TrainingData::load(dir).unwrap()
+    }
+
+    fn tiny_config(epochs: usize) -> TrainingConfig {
+        TrainingConfig {
+            model: PlumeNetConfig::new()
+                .with_filters(vec![4, 8])
+                .with_convs_per_level(1)
+                .with_kernel_size(3),
+            epochs,
+            batch_size: 4,
+            learning_rate: 1e-2,
+            patience: 100,
+            validation_fraction: 0.34,
+            pad_cells: 8,
+            ..TrainingConfig::default()
+        }
+    }
+
+    /// A copy of the model in `from` with mirror averaging on or off.
+    fn with_mirror_average(from: &Path, dir: &Path, on: bool) -> Surrogate {
+        std::fs::create_dir_all(dir).unwrap();
+        std::fs::copy(from.join("weights.bpk"), dir.join("weights.bpk")).unwrap();
+        let mut config: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(from.join("config.json")).unwrap())
+                .unwrap();
+        config["mirror_average"] = serde_json::Value::Bool(on);
+        std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+        Surrogate::load(dir).unwrap()
+    }
+
+    /// The layer list `bench-net --layers` times covers every 5x5 convolution of the network: 21
+    /// layers whose multiply-adds are the forward pass's less the transposed convolutions and the
+    /// head.
+    #[test]
+    fn layer_list_covers_the_network() {
+        // DeepCFD's four levels (the shipped model before the any-room change).
+        let config = PlumeNetConfig::new()
+            .with_in_channels(3)
+            .with_filters(vec![8, 16, 32, 32]);
+        let layers = conv_layers(&config, [32, 144], 1);
+        assert_eq!(layers.iter().map(|(_, n)| n).sum::<usize>(), 21);
+        let convs: u64 = layers.iter().map(|(s, n)| (s.macs() * n) as u64).sum();
+        // Transposed convolutions (one tap per output pixel) and the 1x1 head, by hand.
+        let ups = 4608 * 16 * 8 + 1152 * 32 * 16 + 288 * 32 * 32;
+        let head = 4608 * 8;
+        assert_eq!(convs + ups + head, forward_macs(&config, [32, 144]));
+    }
+
+    #[test]
+    fn the_pytorch_export_holds_the_bank_and_every_weight_and_the_mac_count_adds_up() {
+        let tmp = tempfile::tempdir().unwrap();
+        let data = tiny_dataset(&tmp.path().join("data"));
+        let dir = tmp.path().join("model");
+        let config = tiny_config(1);
+        train(&data, &config, &dir, &mut |_| ()).unwrap();
+        // The export holds one pass (the room as it is), which is the bank of a one-pass model;
+        // trained models average two (`mirror_averaging_is_the_mean_of_the_room_and_its_mirror`).
+        assert_eq!(Surrogate::load(&dir).unwrap().views(), 2);
+        let model = with_mirror_average(&dir, &tmp.path().join("one-pass"), false);
+        let layout = Layout::from_json(BLOCKED).unwrap();
+        let candidates = &layout.candidates(0.5).unwrap()[..5];
+        let out = tmp.path().join("export");
+        let tensors = export_reference(&model, &layout, candidates, &out).unwrap();
+        // Weight and bias of 2 encoder convolutions, 1 transposed convolution, 1 decoder
+        // convolution and the head.
+        assert_eq!(tensors, 10);
+
+        // Burn's raw outputs, transformed back, are the bank.
+        let raw: Array4<f32> = plumenet::io::read_npy(&out.join("outputs.npy")).unwrap();
+        let inputs: Array4<f32> = plumenet::io::read_npy(&out.join("inputs.npy")).unwrap();
+        assert_eq!(inputs.dim(), (5, 7, 16, 72));
+        // The Peclet plane, U dx / D inside the room, and the solved wind relative to the inlet's
+        // (uniform far upwind of the obstacle).
+        assert!((inputs[[0, 3, 5, 5]] - 0.75 * 0.25 / 0.05).abs() < 1e-6);
+        assert!(
+            (inputs[[0, 4, 8, 1]] - 1.0).abs() < 0.05,
+            "{}",
+            inputs[[0, 4, 8, 1]]
+        );
+        assert!(inputs[[0, 5, 8, 1]].abs() < 0.05);
+        let bank = model.predict_many(&layout, candidates).unwrap();
+        let norm = model.saved().normalization;
+        for ((n, _, j, i), &v) in raw.indexed_iter() {
+            let expected = if layout.is_solid(j, i) {
+                0.0
+            } else {
+                norm.inverse(v, layout.wind_speed())
+            };
+            assert_eq!(bank[[n, j, i]].to_bits(), expected.to_bits());
+        }
+
+        // Brute force: every convolution weight times the pixels of the level it writes.
+        let levels = config.model.filters.len();
+        let mut macs = 0u64;
+        for entry in std::fs::read_dir(out.join("weights")).unwrap() {
+            let path = entry.unwrap().path();
+            let name = path.file_stem().unwrap().to_str().unwrap().to_string();
+            if !name.ends_with(".weight") {
+                continue;
+            }
+            let w: ArrayD<f32> = plumenet::io::read_npy(&path).unwrap();
+            let index = |k: usize| name.split('.').nth(k).unwrap().parse::<usize>().unwrap();
+            let level = match name.split('.').next().unwrap() {
+                "encoders" => index(1),
+                "decoders" | "ups" => levels - 2 - index(1),
+                _ => 0,
+            };
+            let pixels = ((16 >> level) * (72 >> level)) as u64;
+            // A 2x2 stride-2 transposed convolution touches each output pixel with one tap.
+            let taps = if name.starts_with("ups") { 4 } else { 1 };
+            macs += w.len() as u64 * pixels / taps;
+        }
+        assert_eq!(macs, forward_macs(&config.model, [16, 72]));
+
+        assert!(time_bank(&model, &layout, candidates, ConvImpl::Own).unwrap() > 0.0);
+        assert!(time_training(&model, &layout, candidates, (2, 1), ConvImpl::Burn).unwrap() > 0.0);
+        assert!(matches!(
+            time_training(&model, &layout, candidates, (6, 1), ConvImpl::Own),
+            Err(Error::Parameter(_))
+        ));
+    }
 }
