@@ -252,19 +252,13 @@ fn cell_centre(cell: f64, i: usize, j: usize) -> (f64, f64) {
 fn check_connectivity(solid: &Array2<bool>, cell: f64, from: WindFrom) -> Result<()> {
     let (ny, nx) = solid.dim();
     // The cells along the inlet wall and along the outlet wall opposite it.
-    let wall = |west_or_south: bool, along_x: bool| -> Vec<(usize, usize)> {
-        match (along_x, west_or_south) {
-            (false, true) => (0..ny).map(|j| (j, 0)).collect(),
-            (false, false) => (0..ny).map(|j| (j, nx - 1)).collect(),
-            (true, true) => (0..nx).map(|i| (0, i)).collect(),
-            (true, false) => (0..nx).map(|i| (ny - 1, i)).collect(),
-        }
-    };
+    let column = |i: usize| -> Vec<(usize, usize)> { (0..ny).map(|j| (j, i)).collect() };
+    let row = |j: usize| -> Vec<(usize, usize)> { (0..nx).map(|i| (j, i)).collect() };
     let (inlet, outlet) = match from {
-        WindFrom::West => (wall(true, false), wall(false, false)),
-        WindFrom::East => (wall(false, false), wall(true, false)),
-        WindFrom::South => (wall(true, true), wall(false, true)),
-        WindFrom::North => (wall(false, true), wall(true, true)),
+        WindFrom::West => (column(0), column(nx - 1)),
+        WindFrom::East => (column(nx - 1), column(0)),
+        WindFrom::South => (row(0), row(ny - 1)),
+        WindFrom::North => (row(ny - 1), row(0)),
     };
     let mut seen = Array2::from_elem((ny, nx), false);
     let mut queue: VecDeque<(usize, usize)> = inlet.into_iter().filter(|&c| !solid[c]).collect();

@@ -279,7 +279,7 @@ fn shipped_model_predicts_and_banks_the_paper_arena() {
     assert_clean_failure(&bank("models/default"), "cell");
     assert_clean_failure(
         &bank("models/arena-v1"),
-        "is from before any-room models (plumenet-model-v1) and knows only a [32, 144] grid",
+        "is a one-room model (plumenet-model-v1) and knows only a [32, 144] grid",
     );
 }
 

@@ -192,7 +192,7 @@ fn plumenet_bank_turns_with_the_layout() {
         assert_eq!(field, expected);
     }
     // A cell size the model was not trained on is refused, naming the trained one; the
-    // one-arena model from before any-room models refuses every other grid, naming both.
+    // one-arena model (format plumenet-model-v1) refuses every other grid, naming both.
     let small = turned(&west(), WindFrom::South);
     let err = model
         .predict_many(&small, &[[1.0, 1.0]])

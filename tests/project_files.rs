@@ -21,6 +21,9 @@ const PHRASES: &[&str] = &[
     "next session",
     "/root/",
     "/work/main",
+    "before this setting",
+    "records from before",
+    "any-room change",
 ];
 
 /// Words that speak of the development when a number follows them ("step 3" is fine, the
@@ -100,6 +103,10 @@ fn the_guard_catches_what_it_should_and_spares_the_domain() {
     assert_eq!(offences("as Issue 14 asked").len(), 1);
     assert_eq!(offences("Today's default").len(), 1);
     assert_eq!(offences("in $HOME/plumenet-work/models").len(), 1);
+    assert_eq!(
+        offences("what records from before this setting read back as").len(),
+        2
+    );
     // The crate's own vocabulary: a live session, a robot that stops, steps of a scheme.
     assert!(offences("a live session over TCP; stop-sense-go stops every metre").is_empty());
     assert!(offences("the session's state file; 3 steps of the solver").is_empty());

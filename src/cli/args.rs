@@ -233,8 +233,7 @@ impl FeatureArgs {
 
     /// [`FeatureArgs::params`] unchecked (for settings already checked once).
     pub fn resolve(&self, feature: Feature, rank_factor: f64) -> SteParams {
-        let mut p = SteParams::for_feature(feature);
-        p.rank.model_rank_factor = rank_factor;
+        let mut p = SteParams::for_model(feature, rank_factor);
         let d = Sigmas::default_for(feature);
         p.sigmas = Sigmas {
             model: self.sigma_model.unwrap_or(d.model),
@@ -447,11 +446,6 @@ pub(super) fn layout_name(path: &std::path::Path) -> String {
         || path.display().to_string(),
         |s| s.to_string_lossy().into(),
     )
-}
-
-/// Prints the baselines (survey: no estimate of its own).
-pub(super) fn print_baselines(b: &Baselines) {
-    print_guesses(None, b);
 }
 
 /// Prints an estimate, when there is one, with the two baselines under it, one per line, so

@@ -378,7 +378,7 @@ mod tests {
     /// head.
     #[test]
     fn layer_list_covers_the_network() {
-        // DeepCFD's four levels (the shipped model before the any-room change).
+        // DeepCFD's four levels (the one-arena network of `models/arena-v1`).
         let config = PlumeNetConfig::new()
             .with_in_channels(3)
             .with_filters(vec![8, 16, 32, 32]);

@@ -81,7 +81,7 @@ pub fn survey(a: SurveyArgs) -> Result<()> {
         plumenet::ste::robot::path_length(&plan.path),
         samples.len()
     );
-    print_baselines(&Baselines::new(&layout, &samples, Some(source))?);
+    print_guesses(None, &Baselines::new(&layout, &samples, Some(source))?);
     println!("wrote {}", a.out.display());
     Ok(())
 }
@@ -272,8 +272,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     };
     let bar = super::progress_bar(study.total_runs(), "runs");
     let rows = study.run(
-        |layout, name| {
-            let k = models.iter().position(|&m| m == name).unwrap_or(0);
+        |layout, k| {
             let (room, note) = a.plume.room_of(layout.clone(), loaded[k].as_ref())?;
             super::say(&bar, note);
             Ok::<_, anyhow::Error>(room)

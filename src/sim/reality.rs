@@ -36,8 +36,8 @@ pub struct Mismatch {
     /// Standard deviation of the wind direction's wander (degrees, 20 s correlation time).
     pub meander_deg: f64,
     /// The wander turns only the flow the room's walls let through
-    /// ([`crate::physics::wind::WindField::crosswind`]), not the whole field (records from
-    /// before this setting read back as `false`, the whole field).
+    /// ([`crate::physics::wind::WindField::crosswind`]), not the whole field (a record without
+    /// this field reads as `false`, the whole field).
     #[serde(default)]
     pub meander_walled: bool,
     /// Recirculated background, in units of the fully mixed concentration `q / (U H)`, rising

@@ -87,9 +87,7 @@ impl RoomBanks {
     /// The estimator's default settings for `feature` over this room's banks: the feature's
     /// defaults ([`SteParams::for_feature`]) with the plume model's own rank factor.
     pub fn ste_params(&self, feature: Feature) -> SteParams {
-        let mut params = SteParams::for_feature(feature);
-        params.rank.model_rank_factor = self.model_rank_factor;
-        params
+        SteParams::for_model(feature, self.model_rank_factor)
     }
 
     /// The same room with the estimator marginalising over the model's wind speed: one bank

@@ -58,7 +58,7 @@ pub struct SteParams {
     /// MiCS-5521, a property of the sensor type like the time constants, not a calibration.
     /// Rank's default is that exponent, with [`SteParams::detection_floor_ppm`] lowered to
     /// where the readings' clean-air band ends; the other features' is 1, which lags the
-    /// concentration itself (and is what records from before this setting read back as).
+    /// concentration itself (and what a record without this field reads as).
     #[serde(default = "concentration_lag")]
     pub sensor_lag_exponent: f64,
     /// Estimated concentrations below this (ppm) are set to zero: a sensor cannot tell them
@@ -76,7 +76,7 @@ pub struct SteParams {
     /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
     /// concentrations ([`crate::layout::Layout::fully_mixed`]), each equally likely a priori and marginalised
     /// in the posterior. 0 turns it off; rank's default is 0.5, the other features' 0 (and 0 is
-    /// what records from before this setting read back as).
+    /// what a record without this field reads as).
     #[serde(default)]
     pub background_rise: f64,
     /// The background's time constant (s), the room's air-exchange time.
@@ -88,7 +88,7 @@ pub struct SteParams {
     /// wanders, its direction fixed within each `WANDER_SEGMENT_S` of readings and unknown
     /// among turns of 0, ±0.5, ±1 and ±1.5 standard deviations (`WANDER_NODES`, Gaussian
     /// prior weights; [`crate::plume::PlumeBank::turned`] banks), marginalised per segment and the segments
-    /// multiplied. 0 (the default, and what records from before this setting read back as)
+    /// multiplied. 0 (the default, and what a record without this field reads as)
     /// takes the wind as steady. Each turn costs about one bank's update.
     #[serde(default)]
     pub wander_deg: f64,
@@ -108,7 +108,7 @@ pub struct RankParams {
     /// clean-air tie group (below the group's rank `q`, its share of the readings) joins that
     /// group, its rank raised to `q`: the sensor cannot order those readings, so neither is
     /// the background's order among them compared. Off by default (and for records from
-    /// before this setting): it fixes a rising background on surveys but costs elsewhere
+    /// without this field): it fixes a rising background on surveys but costs elsewhere
     /// (`docs/ablations.md`).
     #[serde(default)]
     pub clean_air_model_ties: bool,
@@ -118,7 +118,7 @@ pub struct RankParams {
     /// estimates of the background alone among them): the sensor cannot order the lowest `q`
     /// of the readings, so the slot's lowest `q` of the estimates are not compared by their
     /// order either. The slot without a background is left as it is (flooring it too broke
-    /// the planner's paths). Off by default (and for records from before this setting): it
+    /// the planner's paths). Off by default (and for a record without this field): it
     /// helps surveys in unseen rooms and costs in the paper arena
     /// (`docs/ablations.md`).
     #[serde(default)]
@@ -135,15 +135,15 @@ pub struct RankParams {
     /// the factor `r_e >= 1` within which the plume model's concentrations are
     /// known when they are ranked; each candidate's *expected* ranks under that uncertainty
     /// are compared with the readings' (see the module doc). 1 (the default here, and what
-    /// records from before this setting read back as) compares its exact ranks; the CLI takes
+    /// a record without this field reads as) compares its exact ranks; the CLI takes
     /// the plume model's own factor ([`crate::plume::PlumeModel::rank_factor`]: 1 for the
     /// solver, 3 for PlumeNet).
     #[serde(default = "exact_model_ranks")]
     pub model_rank_factor: f64,
 }
 
-/// The lag in the concentration itself: what records from before
-/// [`SteParams::sensor_lag_exponent`] read back as.
+/// The lag in the concentration itself: what a record without
+/// [`SteParams::sensor_lag_exponent`] reads as.
 fn concentration_lag() -> f64 {
     1.0
 }
@@ -192,6 +192,14 @@ impl SteParams {
             background_time_s: default_background_time_s(),
             wander_deg: 0.0,
         }
+    }
+
+    /// The defaults for a feature with a plume model whose concentrations are known within
+    /// `rank_factor` when ranked ([`crate::plume::PlumeModel::rank_factor`]).
+    pub fn for_model(feature: Feature, rank_factor: f64) -> Self {
+        let mut params = Self::for_feature(feature);
+        params.rank.model_rank_factor = rank_factor;
+        params
     }
 
     /// The wind turns (degrees) the estimator weighs: `[0]` with a steady wind, else

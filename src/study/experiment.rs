@@ -434,7 +434,8 @@ impl Study<'_> {
         self.sites.len() * self.models.len() * self.realities.len() * self.plan.len()
     }
 
-    /// Runs the study: `room` gives a site's banks for a plume model (by name), `configure` a
+    /// Runs the study: `room` gives a site's banks for a plume model (its index in
+    /// [`Study::models`]), `configure` a
     /// run's settings for a feature, sensor and those banks, and `done` is called after each
     /// run. Rows come back site by site, model by model, reality by reality, in plan order.
     ///
@@ -442,23 +443,22 @@ impl Study<'_> {
     /// The banks' errors (of the caller's type `E`), the surveys' and the runs' errors.
     pub fn run<E: From<Error>>(
         &self,
-        mut room: impl FnMut(&Layout, &str) -> std::result::Result<RoomBanks, E>,
+        mut room: impl FnMut(&Layout, usize) -> std::result::Result<RoomBanks, E>,
         configure: impl Fn(Feature, SensorPreset, &RoomBanks) -> EpisodeConfig + Sync,
         done: impl Fn() + Sync,
     ) -> std::result::Result<Vec<RunRow>, E> {
         let mut rows = Vec::with_capacity(self.total_runs());
         for (name, layout) in self.sites {
-            let survey = match self.paths {
-                PathsRule::Planner(_) => None,
-                PathsRule::Lawnmower(spacing_m) => Some(lawnmower(layout, &self.robot, spacing_m)?),
+            let survey;
+            let paths = match self.paths {
+                PathsRule::Planner(rule) => Paths::Planner(rule),
+                PathsRule::Lawnmower(spacing_m) => {
+                    survey = lawnmower(layout, &self.robot, spacing_m)?;
+                    Paths::Survey(&survey.path)
+                }
             };
-            let paths = match (&survey, self.paths) {
-                (Some(s), _) => Paths::Survey(&s.path),
-                (None, PathsRule::Planner(rule)) => Paths::Planner(rule),
-                (None, PathsRule::Lawnmower(_)) => unreachable!("a lawnmower study plans a survey"),
-            };
-            for &model in self.models {
-                let model_world = World::new(room(layout, model)?)?;
+            for (k, &model) in self.models.iter().enumerate() {
+                let model_world = World::new(room(layout, k)?)?;
                 for &mismatch in self.realities {
                     let world = model_world.with_mismatch(mismatch)?;
                     let site = StudySite {

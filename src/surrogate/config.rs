@@ -29,7 +29,7 @@ pub struct TrainingConfig {
     pub encoding: SourceEncoding,
     /// Input and target scales.
     pub normalization: Normalization,
-    /// Input channels (models from before the any-room change: geometry only).
+    /// Input channels (one-room models, format `plumenet-model-v1`: geometry only).
     #[serde(default = "legacy_inputs")]
     pub inputs: InputSet,
     /// Rooms are padded to multiples of this many cells, in training (so that rooms of nearby
@@ -172,7 +172,7 @@ pub struct EpochLoss {
     /// Validation loss (unseen layouts).
     pub validation: f64,
     /// Validation loss per room size class ([`super::data::SIZE_CLASSES`]; `None` for a class
-    /// without validation layouts), absent in models from before the any-room change.
+    /// without validation layouts), absent in one-room models (format `plumenet-model-v1`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validation_by_size: Option<[Option<f64>; 3]>,
     /// Median relative L2 error of the held-out maps' concentration over free cells (one

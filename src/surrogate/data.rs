@@ -15,7 +15,7 @@
 //! `f = U / reference_speed_mps` (a faster wind dilutes a source of the same strength, so `c U`
 //! varies less across rooms than `c`), which tames the four decades between the source and the
 //! far field; predictions are mapped back with `c = concentration_scale * (exp(max(y, 0)) - 1)
-//! / f` (non-negative) and set to zero in obstacles. Models from before the any-room change have
+//! / f` (non-negative) and set to zero in obstacles. One-room models (format `plumenet-model-v1`) have
 //! no reference speed (`f = 1`).
 
 use std::collections::BTreeMap;
@@ -49,7 +49,7 @@ pub enum SourceEncoding {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum InputSet {
-    /// Mask, signed distance, source (models from before the any-room change: one room only).
+    /// Mask, signed distance, source (one-room models, format `plumenet-model-v1`).
     Geometry,
     /// Geometry plus the cell Peclet number plane.
     Physics,
@@ -96,7 +96,7 @@ pub struct Normalization {
     pub sdf_scale_m: f32,
     /// `y = ln(1 + c f / concentration_scale)`.
     pub concentration_scale: f32,
-    /// `f = U / reference_speed_mps`; absent (`f = 1`) in models from before the any-room change.
+    /// `f = U / reference_speed_mps`; absent (`f = 1`) in one-room models (format `plumenet-model-v1`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_speed_mps: Option<f32>,
 }

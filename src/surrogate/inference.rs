@@ -58,8 +58,8 @@ impl Surrogate {
     }
 
     /// Checks that the model covers this layout: for an any-room model, its cell size, room
-    /// sides, wind speed and coefficients lie in the trained ranges; for a model from before the
-    /// any-room change, its grid is the one grid the model knows.
+    /// sides, wind speed and coefficients lie in the trained ranges; for a one-room model
+    /// (format `plumenet-model-v1`), its grid is the one grid the model knows.
     ///
     /// # Errors
     /// [`Error::Model`] naming the quantity, the trained range and how to retrain.
@@ -82,7 +82,7 @@ impl Surrogate {
                 let (ny, nx) = Frame::of(layout).canonical_shape();
                 if grid != Some([ny, nx]) || (layout.cell() - self.saved.cell_m).abs() > 1e-12 {
                     return Err(Error::Model(format!(
-                        "model {} is from before any-room models ({LEGACY_MODEL_FORMAT}) and knows \
+                        "model {} is a one-room model ({LEGACY_MODEL_FORMAT}) and knows \
                          only a {:?} grid of {} m cells; the layout has {:?} cells of {} m \
                          (turned so that the wind comes from the west); {retrain}",
                         self.dir.display(),

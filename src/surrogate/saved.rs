@@ -19,7 +19,7 @@ use crate::io;
 
 /// Format tag of `config.json`.
 pub const MODEL_FORMAT: &str = "plumenet-model-v2";
-/// Format tag of models from before the any-room change (one grid, geometry inputs), still
+/// Format tag of one-room models (one grid, geometry inputs), still
 /// loaded for their own grid.
 pub const LEGACY_MODEL_FORMAT: &str = "plumenet-model-v1";
 
@@ -31,13 +31,13 @@ pub struct SavedModel {
     pub format: String,
     /// Architecture.
     pub architecture: PlumeNetConfig,
-    /// The one grid `[H, W]` a model from before the any-room change was trained for (absent in
+    /// The one grid `[H, W]` a one-room model was trained for (absent in
     /// any-room models, which have `ranges`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grid: Option<[usize; 2]>,
     /// Cell size (m).
     pub cell_m: f64,
-    /// Rooms the model was trained on (absent in models from before the any-room change).
+    /// Rooms the model was trained on (absent in one-room models).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ranges: Option<TrainedRanges>,
     /// Source encoding of the inputs.
