@@ -74,6 +74,10 @@ enum Command {
     Ros2Node(live::Ros2NodeArgs),
     /// The paper's study: features x sensors x runs, CSV + summary + box plots.
     Experiment(study::ExperimentArgs),
+    /// The calibration benchmark: whether the credible regions hold the source as often as
+    /// they claim, PlumeNet and the solver side by side, on the arena, unseen rooms, the
+    /// mismatch suite and surveys.
+    Calibration(study::CalibrationArgs),
     /// Two studies run on the same seeds, run by run: the paired difference of their errors
     /// with its standard error, and sign tests.
     Compare(study::CompareArgs),
@@ -371,6 +375,7 @@ impl Cli {
             #[cfg(feature = "ros2")]
             Command::Ros2Node(a) => live::ros2_node(a),
             Command::Experiment(a) => study::experiment(a),
+            Command::Calibration(a) => study::calibration(a),
             Command::Compare(a) => study::compare(a),
             Command::BenchSte(a) => bench_ste::bench_ste(a),
             Command::BenchNet(a) => bench_net::bench_net(a),

@@ -15,6 +15,24 @@ pub fn median(v: &[f64]) -> f64 {
     }
 }
 
+/// The `q` quantile (`q` in `[0, 1]`) of a NaN-free slice by linear interpolation (the
+/// "type 7" rule of R and numpy); NaN for an empty slice.
+pub fn quantile(v: &[f64], q: f64) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    sorted_quantile(&s, q)
+}
+
+/// [`quantile`] of sorted values.
+fn sorted_quantile(v: &[f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let pos = q.clamp(0.0, 1.0) * (v.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
+}
+
 /// Mean and sample standard deviation (0 for a single value).
 pub fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len() as f64;
@@ -41,11 +59,7 @@ impl BoxStats {
             return None;
         }
         v.sort_by(f64::total_cmp);
-        let q = |q: f64| {
-            let pos = q * (v.len() - 1) as f64;
-            let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-            v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
-        };
+        let q = |q: f64| sorted_quantile(&v, q);
         let (q1, median, q3) = (q(0.25), q(0.5), q(0.75));
         let reach = 1.5 * (q3 - q1);
         let low = *v.iter().find(|&&x| x >= q1 - reach)?;

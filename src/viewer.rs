@@ -1,6 +1,6 @@
 //! The run viewer: one self-contained HTML file (no server, no network, no external script or
 //! font; the data embedded as JSON) with a slider over a run's iterations. Each iteration shows
-//! the posterior as a heat map, the obstacles, the trajectory so far, the readings so far
+//! the posterior as a heat map with its 90% credible region outlined, the obstacles, the trajectory so far, the readings so far
 //! coloured by their feature value, the true source where known and the estimate; a small chart
 //! shows the entropy and the error per iteration.
 //!
@@ -17,6 +17,7 @@ use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::Layout;
 use crate::sim::episode::{Episode, IterationRecord};
+use crate::ste::credible::{cell_area_m2, credible_set, outline};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::posterior::{Sample, SteParams};
 use crate::ste::replay::ReplayStep;
@@ -232,6 +233,13 @@ impl<'a> RunView<'a> {
         let error_m = self
             .source
             .map(|[x, y]| (f.estimate[0] - x).hypot(f.estimate[1] - y));
+        let region = credible_set(&f.posterior, 0.9);
+        let cells: Vec<[f64; 2]> = region.iter().map(|&k| self.candidates[k]).collect();
+        let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
+        let sides: Vec<[f64; 4]> = outline(&cells, self.spacing_m)
+            .into_iter()
+            .map(|[a, b]| [r3(a[0]), r3(a[1]), r3(b[0]), r3(b[1])])
+            .collect();
         Ok(json!({
             "iteration": f.iteration,
             "readings": n,
@@ -241,6 +249,8 @@ impl<'a> RunView<'a> {
             "error_m": error_m,
             "posterior_max": pmax,
             "posterior": posterior,
+            "region90_m2": cells.len() as f64 * cell_area_m2(self.candidates),
+            "region90": sides,
             "feature": feature,
         }))
     }

@@ -401,6 +401,41 @@ fn localize_writes_the_run_and_its_pictures() {
     let herr = (best["x"].as_f64().unwrap() - 4.1).hypot(best["y"].as_f64().unwrap() - 2.1);
     assert!((highest["error_m"].as_f64().unwrap() - herr).abs() < 1e-9);
     assert_eq!(run["reality"]["wind_scale"], 1.0);
+    // The uncertainty beside the estimate is the final posterior's: each region is the
+    // fewest most probable cells reaching its level, and covers the source's cell exactly
+    // when the source's level is below it; the printed line states the 90% region's area.
+    let u = &run["uncertainty"];
+    let mut p: Vec<f64> = (run["posterior"].as_array().unwrap().iter())
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    p.sort_by(|a, b| b.total_cmp(a));
+    let level = u["source"]["level"].as_f64().unwrap();
+    for region in u["regions"].as_array().unwrap() {
+        let at = region["level"].as_f64().unwrap();
+        let cells = region["cells"].as_array().unwrap().len();
+        let mass: f64 = p[..cells].iter().sum();
+        let short: f64 = p[..cells - 1].iter().sum();
+        assert!(
+            mass >= at - 1e-9 && short < at,
+            "{at}: {cells} cells hold {mass}"
+        );
+        assert_eq!(region["covers_source"], level < at);
+        assert!((region["area_m2"].as_f64().unwrap() - cells as f64 * 0.0625).abs() < 1e-9);
+    }
+    let area90 = u["regions"][1]["area_m2"].as_f64().unwrap();
+    assert!(
+        stdout.contains(&format!("90% region {area90:.2} m²")),
+        "{stdout}"
+    );
+    let expected: f64 = (run["candidates"].as_array().unwrap().iter())
+        .zip(run["posterior"].as_array().unwrap())
+        .map(|(c, p)| {
+            let [x, y] = [c[0].as_f64().unwrap(), c[1].as_f64().unwrap()];
+            let e = &run["estimate"];
+            p.as_f64().unwrap() * (x - e[0].as_f64().unwrap()).hypot(y - e[1].as_f64().unwrap())
+        })
+        .sum();
+    assert!((u["expected_distance_m"].as_f64().unwrap() - expected).abs() < 1e-9);
     // The run names its sensor as the flag does.
     assert_eq!(run["config"]["sensor"], "sensor-ii");
     // The solver's bank is exact: its ranks are compared as they are; PlumeNet's are known
@@ -519,6 +554,15 @@ fn replay_and_experiment_write_their_reports() {
     let total: f64 = post.iter().map(|p| p["p"].as_f64().unwrap()).sum();
     assert!((total - 1.0).abs() < 1e-9);
     assert!(rep["estimate"].as_array().unwrap().len() == 2);
+    // The report is the library's, and its uncertainty is the posterior's.
+    let report: plumenet::ste::replay::ReplayReport = serde_json::from_value(rep.clone()).unwrap();
+    let u = report.uncertainty.unwrap();
+    let p: Vec<f64> = report.posterior.iter().map(|c| c.p).collect();
+    let cells: Vec<[f64; 2]> = report.posterior.iter().map(|c| [c.x, c.y]).collect();
+    assert_eq!(
+        u,
+        plumenet::ste::Uncertainty::of(&cells, &p, report.estimate, None)
+    );
 
     let dir = tmp.path().join("study");
     plumenet_ok(&[
@@ -545,6 +589,17 @@ fn replay_and_experiment_write_their_reports() {
         "{summary}"
     );
     assert!(summary.contains("| highest reading (m) | centre (m) |"));
+    assert!(summary.contains("| 50% region covers | 90% region covers | 90% region median (m²) |"));
+    // Each run states its regions and whether they hold the source, consistently with the
+    // source's level.
+    let mut reader = csv::Reader::from_reader(runs.as_bytes());
+    for row in reader.deserialize::<plumenet::study::experiment::RunRow>() {
+        let row = row.unwrap();
+        assert_eq!(row.covers_50, Some(row.source_level < 0.5));
+        assert_eq!(row.covers_90, Some(row.source_level < 0.9));
+        assert!(row.area_50_m2 > 0.0 && row.area_50_m2 <= row.area_90_m2);
+        assert!(row.expected_distance_m >= 0.0 && row.log_p_source <= 0.0);
+    }
     assert!(dir.join("boxplots.png").exists());
 }
 
@@ -1036,7 +1091,21 @@ fn bad_likelihood_settings_fail_before_the_bank() {
     let log = log.to_str().unwrap();
     let tolerance = "rank tolerance must be a factor of at least 1, got 0.5";
     let factor = "the model's rank factor must be at least 1, got 0.5";
+    let weight = |w: &str| format!("the evidence weight must lie in (0, 1], got {w}");
+    let (zero, above, nan) = (weight("0"), weight("1.5"), weight("NaN"));
     for (args, needle) in [
+        (
+            &["localize", "--source", "4.5,2.5", "--evidence-weight", "0"][..],
+            zero.as_str(),
+        ),
+        (
+            &["replay", "--log", log, "--evidence-weight", "1.5"][..],
+            above.as_str(),
+        ),
+        (
+            &["experiment", "--runs", "1", "--evidence-weight", "NaN"][..],
+            nan.as_str(),
+        ),
         (
             &["localize", "--source", "4.5,2.5", "--rank-tolerance", "0.5"][..],
             tolerance,

@@ -68,6 +68,13 @@ fn run(layout: &str, reality: &str, run: usize, error_m: f64, iterations: usize)
         distance_m: 10.0,
         wall_time_s: 0.1,
         fit: 0.01,
+        area_50_m2: 0.5,
+        area_90_m2: 1.0,
+        covers_50: Some(error_m < 0.5),
+        covers_90: Some(error_m < 1.0),
+        source_level: 0.5,
+        log_p_source: -2.0,
+        expected_distance_m: 0.4,
     }
 }
 

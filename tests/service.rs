@@ -116,6 +116,11 @@ fn the_protocol_answers_in_order_and_refuses_bad_requests_cleanly() {
         assert!((p["p"].as_f64().unwrap() - q).abs() < 1e-12);
     }
     assert_eq!(r[5]["estimate"], json!(est.estimate()));
+    // Its uncertainty too: the credible regions and expected distance, with no source to score.
+    let u: plumenet::ste::Uncertainty =
+        serde_json::from_value(r[5]["uncertainty"].clone()).unwrap();
+    assert_eq!(u, est.uncertainty(None));
+    assert!(u.source.is_none() && u.regions.len() == 2);
     for (k, needle) in [
         (6, "malformed request"),
         (7, "unknown variant `fly`"),

@@ -1035,8 +1035,22 @@ fn termination_needs_a_stable_concentrated_belief() {
         radius_m: 30.0,
         max_iterations: 30,
         stable_iterations: 1,
+        target_area_m2: None,
     };
     assert!(loose.concentrated(&est) && loose.converged(&est, &[]));
+    // With a target area, the 90% region's area decides, not the entropy: the region's cells
+    // at 0.0625 m² each, against targets just above and just below.
+    let area = est.credible_set(0.9).len() as f64 * 0.0625;
+    let by_area = |target: f64| Termination {
+        entropy_nats: 0.0,
+        radius_m: 0.0,
+        target_area_m2: Some(target),
+        ..loose
+    };
+    assert!(by_area(area + 1e-6).concentrated(&est));
+    assert!(!by_area(area - 1e-6).concentrated(&est));
+    assert!(by_area(0.0).check(72.0).is_err() && by_area(73.0).check(72.0).is_err());
+    assert!(by_area(f64::NAN).check(72.0).is_err() && by_area(72.0).check(72.0).is_ok());
     let tight = Termination {
         entropy_nats: 0.5,
         ..loose

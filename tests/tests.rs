@@ -5,6 +5,7 @@ mod common;
 mod cli;
 mod compare;
 mod conv;
+mod credible;
 mod dataset;
 mod filament;
 mod frame;

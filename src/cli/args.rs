@@ -13,7 +13,7 @@ use plumenet::sim::{EpisodeConfig, Mismatch, derive_seed};
 use plumenet::ste::baseline::Guess;
 use plumenet::ste::{
     Baselines, Feature, PlannerKind, RobotParams, RoomBanks, Sampling, SensorPreset, Sigmas,
-    SteParams, Termination,
+    SteParams, Termination, Uncertainty, ValidSteParams,
 };
 use plumenet::surrogate::Surrogate;
 
@@ -88,7 +88,7 @@ impl PlumeArgs {
         features: &FeatureArgs,
         feature: Feature,
         quiet: bool,
-    ) -> Result<(RoomBanks, SteParams, String)> {
+    ) -> Result<(RoomBanks, ValidSteParams, String)> {
         let model = self.model()?;
         let params = features.params(feature, model.rank_factor())?;
         let (room, note) = self.room_of(layout, model.as_ref())?;
@@ -210,6 +210,15 @@ pub struct FeatureArgs {
         default_value_t = 0.0
     )]
     wind_wander: f64,
+    /// The weight of each reading's evidence in (0, 1]: the log-likelihood is multiplied by
+    /// it (1 treats readings as independent).
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true
+    )]
+    evidence_weight: Option<f64>,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
     /// sensor's response with its lower floor (the other features' lag and floor instead);
@@ -224,15 +233,8 @@ impl FeatureArgs {
     /// model's own ([`PlumeModel::rank_factor`]), the default of `--model-rank-factor`.
     ///
     /// # Errors
-    /// A setting out of its range ([`SteParams::check`]), named with its value.
-    pub fn params(&self, feature: Feature, rank_factor: f64) -> Result<SteParams> {
-        let params = self.resolve(feature, rank_factor);
-        params.check()?;
-        Ok(params)
-    }
-
-    /// [`FeatureArgs::params`] unchecked (for settings already checked once).
-    pub fn resolve(&self, feature: Feature, rank_factor: f64) -> SteParams {
+    /// A setting out of its range ([`SteParams::validate`]), named with its value.
+    pub fn params(&self, feature: Feature, rank_factor: f64) -> Result<ValidSteParams> {
         let mut p = SteParams::for_model(feature, rank_factor);
         let d = Sigmas::default_for(feature);
         p.sigmas = Sigmas {
@@ -260,6 +262,9 @@ impl FeatureArgs {
         }
         p.background_time_s = self.background_time;
         p.wander_deg = self.wind_wander;
+        if let Some(w) = self.evidence_weight {
+            p.evidence_weight = w;
+        }
         if self.paper_rank {
             p = p.papers_rank();
         }
@@ -269,7 +274,7 @@ impl FeatureArgs {
         if let Some(f) = self.detection_floor {
             p.detection_floor_ppm = f;
         }
-        p
+        Ok(p.validate()?)
     }
 }
 
@@ -346,6 +351,16 @@ pub struct RunArgs {
     /// Entropy (nats) below which the run may stop (default: the tuned value).
     #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     entropy_threshold: Option<f64>,
+    /// Stop when the 90% credible region covers at most this area (m²), instead of the
+    /// entropy rule.
+    #[arg(
+        long,
+        value_name = "M2",
+        hide_short_help = true,
+        help_heading = "Robot and stopping rule",
+        allow_negative_numbers = true
+    )]
+    target_area: Option<f64>,
     /// Consecutive concentrated iterations, around the same estimate, needed to stop
     /// (1 = the paper's rule alone).
     #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = Termination::default().stable_iterations)]
@@ -353,10 +368,22 @@ pub struct RunArgs {
 }
 
 impl RunArgs {
+    /// Checks the stopping rule's flags for a room, before any bank is computed.
+    ///
+    /// # Errors
+    /// A target area that is not positive or larger than the room.
+    pub fn check(&self, layout: &Layout) -> Result<()> {
+        let t = Termination {
+            target_area_m2: self.target_area,
+            ..Termination::default()
+        };
+        Ok(t.check(layout.width() * layout.height())?)
+    }
+
     /// The run settings for a feature and sensor.
-    pub fn config(&self, ste: SteParams, sensor: SensorPreset) -> EpisodeConfig {
+    pub fn config(&self, ste: ValidSteParams, sensor: SensorPreset) -> EpisodeConfig {
         let mut c = EpisodeConfig::new(ste.feature, sensor);
-        c.ste = ste;
+        c.ste = ste.into_inner();
         c.planner = self.planner.into();
         c.sensor_noise = !self.noise_free;
         c.termination.max_iterations = self.max_iterations;
@@ -364,6 +391,7 @@ impl RunArgs {
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;
         }
+        c.termination.target_area_m2 = self.target_area;
         if self.stop_sense_go {
             c.robot = RobotParams {
                 sampling: Sampling::stop_sense_go(),
@@ -469,6 +497,33 @@ pub(super) fn print_guesses(estimate: Option<Guess>, b: &Baselines) {
         "arena centre",
         b.centre,
         "baseline: a guess without readings",
+    );
+}
+
+/// Prints the posterior's credible regions and expected distance from the estimate, and
+/// whether each region holds the source when it is known.
+pub(super) fn print_uncertainty(u: &Uncertainty) {
+    let regions: Vec<String> = u
+        .regions
+        .iter()
+        .map(|r| {
+            let covers = match r.covers_source {
+                Some(true) => ", holds the source",
+                Some(false) => ", misses the source",
+                None => "",
+            };
+            format!(
+                "{:.0}% region {:.2} m² ({} cells{covers})",
+                100.0 * r.level,
+                r.area_m2,
+                r.cells.len()
+            )
+        })
+        .collect();
+    println!(
+        "  uncertainty      expected distance {:.2} m; {}",
+        u.expected_distance_m,
+        regions.join("; ")
     );
 }
 

@@ -104,9 +104,10 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
     use plumenet::service::RemoteSession;
     let (layout, source) = a.trial.layout_and_source()?;
     let mismatch = a.reality.mismatch()?;
-    let config = a
-        .run
-        .config(SteParams::for_feature(Feature::Rank), a.sensor.into());
+    let config = a.run.config(
+        SteParams::for_feature(Feature::Rank).validate()?,
+        a.sensor.into(),
+    );
     let start = a.trial.start(&layout, &config.robot, a.seed)?;
     let wind = WindField::solve(&layout)?;
     let reality = Reality::new(&layout, &wind, mismatch)?;

@@ -4,16 +4,16 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use serde_json::json;
 
 use plumenet::io;
 use plumenet::layout::Layout;
 
 use plumenet::report::belief::{BeliefPlot, belief_panel, write_episode_pictures};
 use plumenet::report::{Panel, save_figure};
+use plumenet::sim::episode::RunReport;
 use plumenet::sim::{World, run_episode};
 use plumenet::ste::baseline::Guess;
-use plumenet::ste::replay::{self, read_log, replay_in_steps, thin};
+use plumenet::ste::replay::{self, ReplayReport, read_log, replay_in_steps, thin};
 use plumenet::ste::{Baselines, Feature};
 use plumenet::viewer::RunView;
 
@@ -56,6 +56,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let (layout, source) = a.trial.layout_and_source()?;
     let mismatch = a.reality.mismatch()?;
     let feature = Feature::from(a.feature);
+    a.run.check(&layout)?;
     let (room, params, model_name) = a.plume.room(layout, &a.features, feature, false)?;
     let world = World::new(room)?.with_mismatch(mismatch)?;
     let config = a.run.config(params, a.sensor.into());
@@ -86,6 +87,9 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         error_m: Some(episode.error_m),
     };
     print_guesses(Some(estimate), &episode.baselines);
+    if let Some(u) = &episode.uncertainty {
+        print_uncertainty(u);
+    }
     println!(
         "  (one run is one draw: `experiment` compares the estimate with both baselines over many runs)"
     );
@@ -123,11 +127,13 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     if let Some(path) = &a.json {
-        let mut value = serde_json::to_value(&episode)?;
-        value["model"] = json!(model_name);
-        value["sigmas"] = json!(config.ste.sigmas);
-        value["candidates"] = json!(world.room.sampler.candidates());
-        io::write_json(path, &value)?;
+        let report = RunReport {
+            sigmas: config.ste.sigmas,
+            candidates: world.room.sampler.candidates().to_vec(),
+            model: model_name,
+            episode,
+        };
+        io::write_json(path, &report)?;
         println!("wrote {}", path.display());
     }
     Ok(())
@@ -213,6 +219,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         error_m,
     };
     print_guesses(Some(guess), &baselines);
+    print_uncertainty(&est.uncertainty(source));
     if let Some(path) = &a.png {
         let title = format!(
             "replay  {}  estimate ({:.2}, {:.2})",
@@ -263,19 +270,7 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     if let Some(path) = &a.json {
-        let posterior = plumenet::ste::protocol::posterior_json(&est);
-        let mut report = json!({
-            "estimate": estimate, "entropy": est.entropy(), "fit": est.fit(), "samples": used.len(), "log_readings": samples.len(),
-            "feature": feature.name(), "sigmas": params.sigmas, "model": model_name,
-            "baselines": baselines, "backgrounds": est.backgrounds(), "posterior": posterior,
-            "wind_scales": room.marginal(est.bank_posterior(), |b| b.wind_scale),
-            "wind_spreads": room.marginal(est.bank_posterior(), |b| b.spread_deg),
-            "steady_wind": est.steady_posterior(),
-        });
-        if let (Some(s), Some(e)) = (source, error_m) {
-            report["source"] = json!(s);
-            report["error_m"] = json!(e);
-        }
+        let report = ReplayReport::new(&est, &room, &model_name, samples.len(), baselines, source);
         io::write_json(path, &report)?;
         println!("wrote {}", path.display());
     }

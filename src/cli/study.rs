@@ -8,10 +8,12 @@ use clap::Args;
 use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::physics::wind::WindField;
+use plumenet::plume::PlumeModel;
 use plumenet::sim::episode::StartRule;
 use plumenet::sim::survey::{fly, lawnmower};
 use plumenet::sim::{EpisodeConfig, Mismatch, Reality};
-use plumenet::ste::{Baselines, Feature, SensorPreset, SteParams};
+use plumenet::ste::{Baselines, Feature, SensorPreset, SteParams, ValidSteParams};
+use plumenet::study::calibration::{self, BenchmarkSize, write_calibration};
 use plumenet::study::compare;
 use plumenet::study::experiment::{PathsRule, RunRow, Study, load_sites, plan_runs, write_study};
 
@@ -240,7 +242,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     let robot = a
         .run
         .config(
-            SteParams::for_feature(Feature::Rank),
+            SteParams::for_feature(Feature::Rank).validate()?,
             SensorPreset::SensorII,
         )
         .robot;
@@ -251,16 +253,10 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         (None, None) => default_layout.iter().map(PathBuf::as_path).collect(),
     };
     let sites = load_sites(&files, a.rooms_of.as_deref(), a.rooms)?;
-    // Every model is loaded, and every feature's settings checked with it, before any bank.
-    let loaded = models
-        .iter()
-        .map(|&name| a.plume.model_of(name == "solver"))
-        .collect::<Result<Vec<_>>>()?;
-    for model in &loaded {
-        for &feature in &features {
-            a.overrides.params(feature, model.rank_factor())?;
-        }
+    for (_, layout) in &sites {
+        a.run.check(layout)?;
     }
+    let runner = Runner::new(&models, &features, &a.plume, &a.overrides, &a.run)?;
     let study = Study {
         sites: &sites,
         models: &models,
@@ -271,20 +267,138 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         seed: a.seed,
     };
     let bar = super::progress_bar(study.total_runs(), "runs");
-    let rows = study.run(
-        |layout, k| {
-            let (room, note) = a.plume.room_of(layout.clone(), loaded[k].as_ref())?;
-            super::say(&bar, note);
-            Ok::<_, anyhow::Error>(room)
-        },
-        |f, s, room| {
-            a.run
-                .config(a.overrides.resolve(f, room.model_rank_factor), s)
-        },
-        || bar.inc(1),
-    )?;
+    let rows = runner.run(&study, &bar)?;
     bar.finish_and_clear();
     let table = write_study(&a.out, &rows)?;
+    print!("{table}");
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+/// What runs a study's runs: the plume models, loaded, and every feature's settings checked
+/// with each of them, before any bank.
+struct Runner<'a> {
+    loaded: Vec<Box<dyn PlumeModel>>,
+    settings: Vec<Vec<ValidSteParams>>,
+    features: &'a [Feature],
+    plume: &'a PlumeArgs,
+    run: &'a RunArgs,
+}
+
+impl<'a> Runner<'a> {
+    fn new(
+        models: &[&str],
+        features: &'a [Feature],
+        plume: &'a PlumeArgs,
+        overrides: &FeatureArgs,
+        run: &'a RunArgs,
+    ) -> Result<Self> {
+        let loaded = models
+            .iter()
+            .map(|&name| plume.model_of(name == "solver"))
+            .collect::<Result<Vec<_>>>()?;
+        let settings = loaded
+            .iter()
+            .map(|model| {
+                let of = |&f| overrides.params(f, model.rank_factor());
+                features.iter().map(of).collect::<Result<Vec<_>>>()
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            loaded,
+            settings,
+            features,
+            plume,
+            run,
+        })
+    }
+
+    /// Runs a study with the bar counting its runs.
+    fn run(&self, study: &Study<'_>, bar: &indicatif::ProgressBar) -> Result<Vec<RunRow>> {
+        let (features, settings, run) = (self.features, &self.settings, self.run);
+        let rows = study.run(
+            |layout, k| {
+                let (room, note) = self
+                    .plume
+                    .room_of(layout.clone(), self.loaded[k].as_ref())?;
+                super::say(bar, note);
+                Ok::<_, anyhow::Error>(room)
+            },
+            |f, s, k| {
+                let at = features.iter().position(|&g| g == f);
+                let params = at.map(|i| settings[k][i]).expect("a planned feature");
+                run.config(params, s)
+            },
+            || bar.inc(1),
+        )?;
+        Ok(rows)
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct CalibrationArgs {
+    /// A few runs per suite (minutes) instead of the full benchmark (about an hour).
+    #[arg(long)]
+    quick: bool,
+    /// The paper's arena, whose layout the arena, mismatch and survey suites use.
+    #[arg(long, default_value = "data/layouts/wind-tunnel.json")]
+    layout: PathBuf,
+    /// Output directory (calibration.md, .csv, .json, reliability.png, and each suite's study).
+    #[arg(long, default_value = "out/calibration")]
+    out: PathBuf,
+    #[command(flatten)]
+    plume: PlumeArgs,
+    #[command(flatten)]
+    overrides: FeatureArgs,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+pub fn calibration(a: CalibrationArgs) -> Result<()> {
+    let size = if a.quick {
+        BenchmarkSize::Quick
+    } else {
+        BenchmarkSize::Full
+    };
+    let arena = Layout::load(&a.layout)?;
+    let suites = calibration::suites(&arena, size)?;
+    for (_, layout) in suites.iter().flat_map(|s| &s.sites) {
+        a.run.check(layout)?;
+    }
+    let models = ["plumenet", "solver"];
+    let features = [Feature::Rank];
+    let runner = Runner::new(&models, &features, &a.plume, &a.overrides, &a.run)?;
+    let robot = a
+        .run
+        .config(runner.settings[0][0], SensorPreset::SensorII)
+        .robot;
+    let plans: Vec<_> = suites
+        .iter()
+        .map(|s| plan_runs(&features, &[SensorPreset::SensorII], s.runs))
+        .collect();
+    let studies: Vec<Study> = suites
+        .iter()
+        .zip(&plans)
+        .map(|(s, plan)| Study {
+            sites: &s.sites,
+            models: &models,
+            realities: &s.realities,
+            paths: s.paths,
+            robot,
+            plan,
+            seed: s.seed,
+        })
+        .collect();
+    let total = studies.iter().map(Study::total_runs).sum();
+    let bar = super::progress_bar(total, "runs");
+    let mut results = Vec::new();
+    for (suite, study) in suites.iter().zip(&studies) {
+        let rows = runner.run(study, &bar)?;
+        write_study(&a.out.join(suite.name.replace(' ', "-")), &rows)?;
+        results.push((suite.name.clone(), rows));
+    }
+    bar.finish_and_clear();
+    let table = write_calibration(&a.out, &results)?;
     print!("{table}");
     println!("wrote {}", a.out.display());
     Ok(())

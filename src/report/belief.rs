@@ -13,10 +13,15 @@ use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::report::{FieldPanel, FieldPlot, Panel, colour, legend, save_figure};
 use crate::sim::episode::Episode;
+use crate::ste::credible::{credible_set, outline};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 
 const TRAJECTORY: RGBColor = RGBColor(215, 215, 215);
 const SOURCE: RGBColor = RGBColor(230, 30, 30);
+/// The 90% credible region's outline.
+const REGION: RGBColor = RGBColor(255, 60, 220);
+/// The credible level whose region's outline is drawn.
+const REGION_LEVEL: f64 = 0.9;
 
 /// What to draw.
 #[derive(Debug, Clone, Copy)]
@@ -101,6 +106,16 @@ where
             .label("true source")
             .legend(|(x, y)| Circle::new((x + 8, y), 5, SOURCE.filled()));
     }
+    let region = credible_set(p.posterior, REGION_LEVEL);
+    let cells: Vec<[f64; 2]> = region.iter().map(|&k| p.candidates[k]).collect();
+    let sides = outline(&cells, p.spacing_m);
+    let side = |[a, b]: [[f64; 2]; 2]| {
+        PathElement::new([(a[0], a[1]), (b[0], b[1])], REGION.stroke_width(2))
+    };
+    chart
+        .draw_series(sides.into_iter().map(side))?
+        .label("90% credible region")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], REGION.stroke_width(2)));
     let [x, y] = p.estimate;
     let marks = [(BLACK, 4), (WHITE, 2)].map(|(c, w)| Cross::new((x, y), 8, c.stroke_width(w)));
     chart

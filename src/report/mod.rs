@@ -1,5 +1,5 @@
-//! Figures drawn with `plotters`: fields over the arena ([`field`]), STE beliefs ([`belief`]) and
-//! the study's box plots ([`boxplot`]); PNG, or SVG when the file name ends in `.svg`. Text is
+//! Figures drawn with `plotters`: fields over the arena ([`field`]), STE beliefs ([`belief`]),
+//! the study's box plots ([`boxplot`]) and reliability diagrams ([`curves`]); PNG, or SVG when the file name ends in `.svg`. Text is
 //! DejaVu Sans, embedded by the `dejavu` crate: no system fonts needed. Tables are Markdown
 //! ([`markdown_table`]).
 
@@ -17,6 +17,7 @@ use crate::io;
 
 pub mod belief;
 pub mod boxplot;
+pub mod curves;
 pub mod field;
 
 pub use field::{FieldPanel, FieldPlot, LOG_DECADES};
@@ -43,6 +44,8 @@ pub enum Panel<'a> {
     Field(FieldPanel<'a>),
     /// Box plots of a study.
     Boxes(boxplot::BoxPanel),
+    /// Lines over `[0, 1]`, such as a reliability diagram.
+    Curves(curves::CurvePanel),
 }
 
 impl Panel<'_> {
@@ -50,6 +53,7 @@ impl Panel<'_> {
         match self {
             Self::Field(p) => p.size(),
             Self::Boxes(_) => (960, 340),
+            Self::Curves(_) => (640, 400),
         }
     }
 
@@ -57,6 +61,7 @@ impl Panel<'_> {
         match self {
             Self::Field(p) => p.draw(area),
             Self::Boxes(p) => p.draw(area),
+            Self::Curves(p) => p.draw(area),
         }
     }
 }

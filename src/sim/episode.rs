@@ -27,6 +27,7 @@ use crate::sim::reality::{Field, Flight, Mismatch, Reality};
 use crate::sim::seed::derive_seed;
 use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::baseline::Baselines;
+use crate::ste::credible::Uncertainty;
 use crate::ste::features::Feature;
 use crate::ste::planner::PlannerKind;
 use crate::ste::posterior::{Sample, SteParams, Termination};
@@ -247,8 +248,27 @@ pub struct Episode {
     /// the estimator weighs a wander ([`crate::ste::SteParams::wander_deg`]).
     #[serde(default)]
     pub steady_wind: Option<f64>,
+    /// The final posterior's credible regions, expected distance from the estimate and score
+    /// of the true source ([`crate::ste::Uncertainty`]; `None` in a record without it).
+    #[serde(default)]
+    pub uncertainty: Option<Uncertainty>,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
+}
+
+/// What `localize --json` writes: the run with the plume model's name, the likelihood's
+/// standard deviations and the candidates (the posterior's cells, in its order).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunReport {
+    /// The run.
+    #[serde(flatten)]
+    pub episode: Episode,
+    /// The plume model's name.
+    pub model: String,
+    /// The likelihood's standard deviations.
+    pub sigmas: crate::ste::Sigmas,
+    /// The candidates (m), in the order of [`Episode::posterior`].
+    pub candidates: Vec<[f64; 2]>,
 }
 
 /// Draws a point uniformly until `accept` takes it (at most 100 000 tries).
@@ -507,6 +527,7 @@ pub fn run_episode(
         wind_spreads: world.room.marginal(est.bank_posterior(), |b| b.spread_deg),
         backgrounds: est.backgrounds(),
         steady_wind: est.steady_posterior(),
+        uncertainty: Some(est.uncertainty(Some(source))),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })
 }

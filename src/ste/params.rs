@@ -1,5 +1,10 @@
 //! The estimator's settings: the likelihood's standard deviations, every option of the
-//! features and the likelihood ([`SteParams`], with each feature's defaults).
+//! features and the likelihood ([`SteParams`], with each feature's defaults), and the same
+//! settings checked against their ranges ([`ValidSteParams`], what the estimator runs on).
+//!
+//! As in linfa's parameter guards, [`SteParams`] is the open builder and [`ValidSteParams`]
+//! the checked value: [`SteParams::validate`] checks once, and the estimator takes either (an
+//! unchecked value is checked when the estimator is built).
 
 use serde::{Deserialize, Serialize};
 
@@ -92,6 +97,13 @@ pub struct SteParams {
     /// takes the wind as steady. Each turn costs about one bank's update.
     #[serde(default)]
     pub wander_deg: f64,
+    /// The weight of each reading's evidence: the log-likelihood is multiplied by it (a
+    /// tempered likelihood). Readings taken at 10 Hz by a sensor whose response lasts seconds,
+    /// through a plume model that is not exact, carry less than independent ones would; 1
+    /// treats them as independent (the paper's form, and what a record without this field
+    /// reads as).
+    #[serde(default = "independent_readings")]
+    pub evidence_weight: f64,
 }
 
 /// The rank feature's own settings: how readings near clean air tie, how far the plume model's
@@ -153,6 +165,11 @@ fn exact_model_ranks() -> f64 {
     1.0
 }
 
+/// Independent readings: the [`SteParams::evidence_weight`] of a record without it.
+fn independent_readings() -> f64 {
+    1.0
+}
+
 /// The default time constant of the background's rise (s).
 fn default_background_time_s() -> f64 {
     60.0
@@ -191,6 +208,7 @@ impl SteParams {
             },
             background_time_s: default_background_time_s(),
             wander_deg: 0.0,
+            evidence_weight: independent_readings(),
         }
     }
 
@@ -222,7 +240,8 @@ impl SteParams {
     }
 
     /// The same settings with the paper's rank likelihood: no clean-air ties (of the readings
-    /// or of the model), no rank tolerance, exact model ranks, no background nuisance, and the
+    /// or of the model), no rank tolerance, exact model ranks, no background nuisance,
+    /// independent readings, and the
     /// other features' lag in the concentration and detection floor
     /// ([`SteParams::lag_in_concentration`]; other features are unaffected).
     pub fn papers_rank(self) -> Self {
@@ -237,11 +256,21 @@ impl SteParams {
             },
             background_rise: 0.0,
             wander_deg: 0.0,
+            evidence_weight: independent_readings(),
             ..self.lag_in_concentration()
         }
     }
 
-    /// Checks every setting against its range (the estimator checks again when it is built).
+    /// These settings checked against their ranges, as the estimator takes them.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] naming the first setting out of range and its value.
+    pub fn validate(self) -> Result<ValidSteParams> {
+        self.check()?;
+        Ok(ValidSteParams(self))
+    }
+
+    /// Checks every setting against its range.
     ///
     /// # Errors
     /// [`Error::Parameter`] naming the first setting out of range and its value.
@@ -318,6 +347,15 @@ impl SteParams {
                 self.wander_deg
             )));
         }
+        if !(self.evidence_weight.is_finite()
+            && self.evidence_weight > 0.0
+            && self.evidence_weight <= 1.0)
+        {
+            return Err(Error::Parameter(format!(
+                "the evidence weight must lie in (0, 1], got {}",
+                self.evidence_weight
+            )));
+        }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
             return Err(Error::Parameter(format!(
                 "ppm per unit must be positive, got {}",
@@ -325,6 +363,36 @@ impl SteParams {
             )));
         }
         Ok(())
+    }
+}
+
+/// [`SteParams`] checked against their ranges ([`SteParams::validate`]): what
+/// [`crate::ste::posterior::Estimator`] runs on. Reads as the settings it holds; serialised as
+/// them.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(transparent)]
+pub struct ValidSteParams(SteParams);
+
+impl ValidSteParams {
+    /// The settings, to change and check again.
+    pub fn into_inner(self) -> SteParams {
+        self.0
+    }
+}
+
+impl std::ops::Deref for ValidSteParams {
+    type Target = SteParams;
+
+    fn deref(&self) -> &SteParams {
+        &self.0
+    }
+}
+
+impl TryFrom<SteParams> for ValidSteParams {
+    type Error = Error;
+
+    fn try_from(params: SteParams) -> Result<Self> {
+        params.validate()
     }
 }
 

@@ -6,10 +6,10 @@
 //! `e_i(theta_j)` (estimates) come from [`FeatureTrack`]s, and the log-likelihood is
 //!
 //! ```text
-//! ln p(D | theta_j) = -1/2 * sum_i n/(n+1) * (e_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i^2)
+//! ln p(D | theta_j) = -W/2 * sum_i n/(n+1) * (e_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i^2)
 //! ```
 //!
-//! over all `n` readings so far, recomputed from a uniform prior at every update (ranks change
+//! over all `n` readings so far, each weighing `W` ([`SteParams::evidence_weight`]), recomputed from a uniform prior at every update (ranks change
 //! with every reading). The prior is zero inside the inflated obstacles and the boundary band.
 //! Before the features are taken, each estimated series passes through the sensor's response
 //! and recovery ([`SteParams::sensor_lag_s`], acting on the estimates raised to
@@ -27,9 +27,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
+use crate::ste::credible::{self, Uncertainty};
 use crate::ste::features::{Feature, FeatureTrack};
 use crate::ste::params::WANDER_NODES;
-pub use crate::ste::params::{Sigmas, SteParams};
+pub use crate::ste::params::{Sigmas, SteParams, ValidSteParams};
 use crate::ste::sampler::FieldSampler;
 
 /// One reading at a position.
@@ -82,7 +83,7 @@ fn background_levels(params: &SteParams) -> Vec<f64> {
 /// The grid Bayesian filter over candidate source cells.
 #[derive(Debug, Clone)]
 pub struct Estimator {
-    params: SteParams,
+    params: ValidSteParams,
     /// The banks: the model's at the layout's wind speed first, then at the other nuisance
     /// values (see [`Estimator::with_banks`]), each followed by its turned copies when the
     /// wind may wander (`turns` per bank, the unturned first).
@@ -117,12 +118,28 @@ pub struct Estimator {
     last_time: Option<f64>,
 }
 
+/// One candidate of a reported posterior.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CellProbability {
+    /// The candidate's x (m).
+    pub x: f64,
+    /// The candidate's y (m).
+    pub y: f64,
+    /// Its posterior probability.
+    pub p: f64,
+}
+
 impl Estimator {
     /// A fresh estimator with the uniform prior over `support`.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for bad settings or a support of the wrong length or empty.
-    pub fn new(sampler: Arc<FieldSampler>, support: &[bool], params: SteParams) -> Result<Self> {
+    /// [`Error::Parameter`] for bad settings (unless already checked, [`ValidSteParams`]) or
+    /// a support of the wrong length or empty.
+    pub fn new<P>(sampler: Arc<FieldSampler>, support: &[bool], params: P) -> Result<Self>
+    where
+        P: TryInto<ValidSteParams>,
+        Error: From<P::Error>,
+    {
         Self::with_banks(vec![sampler], support, params)
     }
 
@@ -132,14 +149,18 @@ impl Estimator {
     /// marginal over candidates and [`Estimator::bank_posterior`] over banks.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for bad settings, no bank, banks over different candidates, or a
+    /// [`Error::Parameter`] for bad settings (unless already checked), no bank, banks over different candidates, or a
     /// support of the wrong length or empty.
-    pub fn with_banks(
+    pub fn with_banks<P>(
         samplers: Vec<Arc<FieldSampler>>,
         support: &[bool],
-        params: SteParams,
-    ) -> Result<Self> {
-        params.check()?;
+        params: P,
+    ) -> Result<Self>
+    where
+        P: TryInto<ValidSteParams>,
+        Error: From<P::Error>,
+    {
+        let params = params.try_into()?;
         let Some(first) = samplers.first() else {
             return Err(Error::Parameter("no plume bank".into()));
         };
@@ -355,7 +376,7 @@ impl Estimator {
         self.positions.extend(samples.iter().map(|s| [s.x, s.y]));
 
         let n = self.measured.len() as f64;
-        let factor = -0.5 * n / (n + 1.0);
+        let factor = -0.5 * n / (n + 1.0) * self.params.evidence_weight;
         let variance = self.params.sigmas.variance();
         let (r, r_model) = (
             self.params.rank.rank_tolerance,
@@ -551,18 +572,25 @@ impl Estimator {
     /// Indices of the smallest set of candidates holding at least `mass` of the posterior,
     /// most probable first.
     pub fn credible_set(&self, mass: f64) -> Vec<usize> {
-        let mut order: Vec<usize> = (0..self.posterior.len()).collect();
-        order.sort_by(|&a, &b| self.posterior[b].total_cmp(&self.posterior[a]));
-        let mut total = 0.0;
-        let mut out = Vec::new();
-        for k in order {
-            if total >= mass {
-                break;
-            }
-            total += self.posterior[k];
-            out.push(k);
-        }
-        out
+        credible::credible_set(&self.posterior, mass)
+    }
+
+    /// The posterior as reports write it: each candidate with its probability.
+    pub fn posterior_cells(&self) -> Vec<CellProbability> {
+        let cells = self.candidates().iter().zip(&self.posterior);
+        cells
+            .map(|(c, &p)| CellProbability {
+                x: c[0],
+                y: c[1],
+                p,
+            })
+            .collect()
+    }
+
+    /// The posterior's credible regions and expected distance from the estimate, scored
+    /// against `source` when it is known ([`Uncertainty::of`]).
+    pub fn uncertainty(&self, source: Option<[f64; 2]>) -> Uncertainty {
+        Uncertainty::of(self.candidates(), &self.posterior, self.estimate(), source)
     }
 }
 
@@ -688,6 +716,11 @@ pub struct Termination {
     /// The belief must have been concentrated, with the MAP cell within `radius_m` of the
     /// current one, for this many consecutive iterations (1 = the paper's rule alone).
     pub stable_iterations: usize,
+    /// When set, the belief counts as concentrated when the credible region of `mass` covers
+    /// at most this area (m^2), instead of the entropy and radius rule. `None` (what a record
+    /// without this field reads as) keeps the entropy and radius rule.
+    #[serde(default)]
+    pub target_area_m2: Option<f64>,
 }
 
 impl Default for Termination {
@@ -698,15 +731,24 @@ impl Default for Termination {
             radius_m: 0.75,
             max_iterations: 30,
             stable_iterations: 2,
+            target_area_m2: None,
         }
     }
 }
 
 impl Termination {
-    /// Whether the belief is concentrated: entropy below the threshold and the credible set
-    /// confined around the MAP cell.
+    /// Whether the belief is concentrated: the credible region within the target area when
+    /// one is set, else entropy below the threshold and the credible set confined around the
+    /// MAP cell.
     pub fn concentrated(&self, est: &Estimator) -> bool {
-        if est.is_empty() || est.entropy() >= self.entropy_nats {
+        if est.is_empty() {
+            return false;
+        }
+        if let Some(target) = self.target_area_m2 {
+            let cells = est.credible_set(self.mass).len();
+            return cells as f64 * credible::cell_area_m2(est.candidates()) <= target;
+        }
+        if est.entropy() >= self.entropy_nats {
             return false;
         }
         let [mx, my] = est.estimate();
@@ -714,6 +756,21 @@ impl Termination {
             let [x, y] = est.candidates()[k];
             (x - mx).hypot(y - my) <= self.radius_m
         })
+    }
+
+    /// Checks the rule for a room of `area_m2` square metres.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for a target area that is not positive or larger than the room.
+    pub fn check(&self, area_m2: f64) -> Result<()> {
+        match self.target_area_m2 {
+            Some(a) if !(a.is_finite() && a > 0.0 && a <= area_m2) => {
+                Err(Error::Parameter(format!(
+                    "the target area must be a positive number of square metres no larger than the room's {area_m2:.1}, got {a}"
+                )))
+            }
+            _ => Ok(()),
+        }
     }
 
     /// Whether to stop: the belief is concentrated and `recent` (whether it was concentrated,

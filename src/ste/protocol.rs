@@ -9,8 +9,9 @@
 //! - `iterate`, optionally with `"position": [x, y]` (default: the last reading's): `iteration`,
 //!   `readings`, `estimate`, `entropy`, `fit`, `credible_region`, `converged`, `done`, `goal`
 //!   and `path` (see [`Iteration`](crate::ste::session::Iteration));
-//! - `belief`: `estimate` and `posterior` (`x`, `y`, `p` per candidate) as of the last
-//!   iteration, as `replay --json` writes them;
+//! - `belief`: `estimate`, `posterior` (`x`, `y`, `p` per candidate) and `uncertainty` (the
+//!   credible regions and expected distance, [`Uncertainty`](crate::ste::Uncertainty)) as of
+//!   the last iteration, as `replay --json` writes them;
 //! - `reset`: back to the prior, every reading forgotten.
 //!
 //! A rejected request leaves the session as it was. Accepted readings and resets go to a
@@ -20,7 +21,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use crate::error::Result;
-use crate::ste::posterior::{Estimator, Sample};
+use crate::ste::posterior::Sample;
 use crate::ste::session::Session;
 
 /// Version of the protocol, reported by `hello`.
@@ -131,7 +132,11 @@ impl Protocol {
             Op::Iterate { position } => json!(self.session.iterate(position)?),
             Op::Belief => {
                 let est = self.session.estimator();
-                json!({ "estimate": est.estimate(), "posterior": posterior_json(est) })
+                json!({
+                    "estimate": est.estimate(),
+                    "posterior": est.posterior_cells(),
+                    "uncertainty": est.uncertainty(None),
+                })
             }
             Op::Reset => {
                 journal.clear()?;
@@ -140,13 +145,4 @@ impl Protocol {
             }
         })
     }
-}
-
-/// The posterior as `replay --json` and `belief` write it: `{"x", "y", "p"}` per candidate.
-pub fn posterior_json(est: &Estimator) -> Vec<Value> {
-    est.candidates()
-        .iter()
-        .zip(est.posterior())
-        .map(|(c, p)| json!({"x": c[0], "y": c[1], "p": p}))
-        .collect()
 }

@@ -5,9 +5,15 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use serde::{Deserialize, Serialize};
+
 use crate::error::{Error, Result};
 use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
-use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
+use crate::ste::baseline::Baselines;
+use crate::ste::credible::Uncertainty;
+use crate::ste::posterior::{
+    CellProbability, Estimator, Sample, Sigmas, SteParams, ValidSteParams, prior_support,
+};
 use crate::ste::sampler::FieldSampler;
 
 const COLUMNS: [&str; 4] = ["t", "x", "y", "value"];
@@ -135,12 +141,16 @@ pub fn check_memory(
 ///
 /// # Errors
 /// [`Error::Parameter`] for bad settings, no bank, or a sample outside the arena.
-pub fn replay(
+pub fn replay<P>(
     samplers: Vec<Arc<FieldSampler>>,
-    params: SteParams,
+    params: P,
     robot_radius_m: f64,
     samples: &[Sample],
-) -> Result<Estimator> {
+) -> Result<Estimator>
+where
+    P: TryInto<ValidSteParams>,
+    Error: From<P::Error>,
+{
     replay_in_steps(samplers, params, robot_radius_m, samples, 1).map(|(est, _)| est)
 }
 
@@ -149,13 +159,17 @@ pub fn replay(
 ///
 /// # Errors
 /// As [`replay`]; [`Error::Parameter`] for zero steps.
-pub fn replay_in_steps(
+pub fn replay_in_steps<P>(
     samplers: Vec<Arc<FieldSampler>>,
-    params: SteParams,
+    params: P,
     robot_radius_m: f64,
     samples: &[Sample],
     steps: usize,
-) -> Result<(Estimator, Vec<ReplayStep>)> {
+) -> Result<(Estimator, Vec<ReplayStep>)>
+where
+    P: TryInto<ValidSteParams>,
+    Error: From<P::Error>,
+{
     if steps == 0 {
         return Err(Error::Parameter("a replay needs at least one step".into()));
     }
@@ -181,4 +195,81 @@ pub fn replay_in_steps(
         });
     }
     Ok((est, out))
+}
+
+/// What `replay --json` writes: the estimate beside its uncertainty and the baselines, the
+/// posterior and the nuisances' posteriors, and the error when the source is known.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReplayReport {
+    /// The posterior's most probable cell (m).
+    pub estimate: [f64; 2],
+    /// The credible regions and expected distance, scored against the source when it is known.
+    #[serde(default)]
+    pub uncertainty: Option<Uncertainty>,
+    /// Posterior entropy (nats).
+    pub entropy: f64,
+    /// Goodness of fit ([`Estimator::fit`]).
+    pub fit: Option<f64>,
+    /// Readings the estimator took in.
+    pub samples: usize,
+    /// Readings in the log (more when it was thinned).
+    pub log_readings: usize,
+    /// The gas feature's name.
+    pub feature: String,
+    /// The likelihood's standard deviations.
+    pub sigmas: Sigmas,
+    /// The plume model's name.
+    pub model: String,
+    /// The simple guesses beside the estimate, over every reading of the log.
+    pub baselines: Baselines,
+    /// The background rises marginalised and their posterior ([`Estimator::backgrounds`]).
+    pub backgrounds: Vec<[f64; 2]>,
+    /// Each candidate with its posterior probability.
+    pub posterior: Vec<CellProbability>,
+    /// The model wind speeds marginalised (factors of the layout's) and their posterior.
+    pub wind_scales: Vec<[f64; 2]>,
+    /// The wind-direction spreads marginalised (degrees) and their posterior.
+    pub wind_spreads: Vec<[f64; 2]>,
+    /// The posterior probability of a steady wind, when a wander is weighed.
+    pub steady_wind: Option<f64>,
+    /// The true source (m), when known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<[f64; 2]>,
+    /// The estimate's distance from the source (m), when it is known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error_m: Option<f64>,
+}
+
+impl ReplayReport {
+    /// The report of a replay: `est` after the readings over `room`'s banks of the plume model
+    /// `model`, `log_readings` in the log, with its `baselines` and the `source` when known.
+    pub fn new(
+        est: &Estimator,
+        room: &RoomBanks,
+        model: &str,
+        log_readings: usize,
+        baselines: Baselines,
+        source: Option<[f64; 2]>,
+    ) -> Self {
+        let estimate = est.estimate();
+        Self {
+            estimate,
+            uncertainty: Some(est.uncertainty(source)),
+            entropy: est.entropy(),
+            fit: est.fit(),
+            samples: est.positions().len(),
+            log_readings,
+            feature: est.params().feature.name().into(),
+            sigmas: est.params().sigmas,
+            model: model.into(),
+            baselines,
+            backgrounds: est.backgrounds(),
+            posterior: est.posterior_cells(),
+            wind_scales: room.marginal(est.bank_posterior(), |b| b.wind_scale),
+            wind_spreads: room.marginal(est.bank_posterior(), |b| b.spread_deg),
+            steady_wind: est.steady_posterior(),
+            source,
+            error_m: source.map(|s| (estimate[0] - s[0]).hypot(estimate[1] - s[1])),
+        }
+    }
 }

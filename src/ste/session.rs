@@ -93,11 +93,12 @@ impl Session {
     /// A fresh session (uniform prior, no readings) over `room`'s banks.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for bad robot or STE settings, or a layout with no room for the
+    /// [`Error::Parameter`] for bad robot, STE or stopping settings, or a layout with no room for the
     /// robot or no candidate in the prior.
     pub fn new(room: &RoomBanks, config: SessionConfig) -> Result<Self> {
         config.robot.check()?;
         let layout = &room.layout;
+        config.termination.check(layout.width() * layout.height())?;
         let occupancy = Occupancy::new(layout, config.robot.radius_m + config.robot.clearance_m)?;
         let support = prior_support(
             layout,

@@ -26,9 +26,10 @@ use crate::sim::episode::{
 use crate::sim::reality::Mismatch;
 use crate::sim::seed::derive_seed;
 use crate::sim::survey::{fly, lawnmower};
-use crate::stats::{mean_std, median};
+use crate::stats::{mean_std, median, quantile};
 use crate::ste::banks::RoomBanks;
 use crate::ste::baseline::Baselines;
+use crate::ste::credible::Uncertainty;
 use crate::ste::features::Feature;
 use crate::ste::replay::replay;
 use crate::ste::robot::RobotParams;
@@ -88,7 +89,37 @@ pub struct RunRow {
     pub wall_time_s: f64,
     /// Goodness of fit at the end ([`crate::ste::posterior::Estimator::fit`]).
     pub fit: f64,
+    /// Area of the final 50% credible region (m^2; NaN in a record without it).
+    #[serde(default = "not_recorded")]
+    pub area_50_m2: f64,
+    /// Area of the final 90% credible region (m^2; NaN in a record without it).
+    #[serde(default = "not_recorded")]
+    pub area_90_m2: f64,
+    /// Whether the final 50% credible region holds the source.
+    #[serde(default)]
+    pub covers_50: Option<bool>,
+    /// Whether the final 90% credible region holds the source.
+    #[serde(default)]
+    pub covers_90: Option<bool>,
+    /// The smallest credible level whose region holds the source
+    /// ([`crate::ste::SourceScore::level`]).
+    #[serde(default = "not_recorded")]
+    pub source_level: f64,
+    /// Log posterior of the source's cell ([`crate::ste::SourceScore::log_posterior`]).
+    #[serde(default = "not_recorded")]
+    pub log_p_source: f64,
+    /// The posterior's expected distance from its estimate (m).
+    #[serde(default = "not_recorded")]
+    pub expected_distance_m: f64,
 }
+
+/// What a run record without an uncertainty column reads as.
+fn not_recorded() -> f64 {
+    f64::NAN
+}
+
+/// A run declared converged this far or farther from the source (m) is confidently wrong.
+pub const WRONG_CONVERGENCE_M: f64 = 1.5;
 
 /// Mean and standard deviation of error and iterations of one layout, plume model, reality,
 /// path kind, feature and sensor, with the baselines' mean errors on the same runs.
@@ -124,6 +155,27 @@ pub struct SummaryRow {
     pub iterations_std: f64,
     /// Share of runs that converged before the limit.
     pub converged_share: f64,
+    /// 90th percentile of the error (m).
+    #[serde(default = "not_recorded")]
+    pub error_p90_m: f64,
+    /// Largest error (m).
+    #[serde(default = "not_recorded")]
+    pub error_max_m: f64,
+    /// Share of runs whose 50% credible region holds the source.
+    #[serde(default = "not_recorded")]
+    pub cover_50_share: f64,
+    /// Share of runs whose 90% credible region holds the source.
+    #[serde(default = "not_recorded")]
+    pub cover_90_share: f64,
+    /// Median area of the 90% credible region (m^2).
+    #[serde(default = "not_recorded")]
+    pub area_90_median_m2: f64,
+    /// Runs declared converged [`WRONG_CONVERGENCE_M`] or more off.
+    #[serde(default)]
+    pub wrong_converged: usize,
+    /// Median iterations.
+    #[serde(default = "not_recorded")]
+    pub iterations_median: f64,
 }
 
 /// The runs of a study, in a fixed order (feature, sensor, run).
@@ -188,6 +240,7 @@ struct Outcome {
     distance_m: f64,
     wall_time_s: f64,
     fit: f64,
+    uncertainty: Uncertainty,
 }
 
 /// Runs one run of a study at `source` with the run seed `seed`.
@@ -223,6 +276,7 @@ fn run_one(
                 distance_m,
                 wall_time_s: ep.wall_time_s,
                 fit: ep.history.last().and_then(|h| h.fit).unwrap_or(f64::NAN),
+                uncertainty: ep.uncertainty.expect("a run's uncertainty"),
             })
         }
         Paths::Survey(path) => {
@@ -246,6 +300,7 @@ fn run_one(
                 distance_m: path_length(path),
                 wall_time_s: clock.elapsed().as_secs_f64(),
                 fit: est.fit().unwrap_or(f64::NAN),
+                uncertainty: est.uncertainty(Some(source)),
             })
         }
     }
@@ -273,6 +328,8 @@ pub fn run_study(
             let out = run_one(site, &config, source, run_seed)?;
             done();
             let error = |g: crate::ste::baseline::Guess| g.error_m.unwrap_or(f64::NAN);
+            let region = |level| out.uncertainty.region(level);
+            let score = out.uncertainty.source;
             Ok(RunRow {
                 layout: site.layout.into(),
                 model: site.model.into(),
@@ -299,6 +356,13 @@ pub fn run_study(
                 distance_m: out.distance_m,
                 wall_time_s: out.wall_time_s,
                 fit: out.fit,
+                area_50_m2: region(0.5).map_or(f64::NAN, |r| r.area_m2),
+                area_90_m2: region(0.9).map_or(f64::NAN, |r| r.area_m2),
+                covers_50: region(0.5).and_then(|r| r.covers_source),
+                covers_90: region(0.9).and_then(|r| r.covers_source),
+                source_level: score.map_or(f64::NAN, |s| s.level),
+                log_p_source: score.map_or(f64::NAN, |s| s.log_posterior),
+                expected_distance_m: out.uncertainty.expected_distance_m,
             })
         })
         .collect()
@@ -334,7 +398,35 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
             let mean_of =
                 |f: fn(&RunRow) -> f64| mean_std(&g.iter().map(|r| f(r)).collect::<Vec<_>>()).0;
             let [layout, model, reality, paths, feature, sensor] = k;
+            let share = |covers: fn(&RunRow) -> Option<bool>| {
+                let known: Vec<bool> = g.iter().filter_map(|r| covers(r)).collect();
+                let hits = known.iter().filter(|&&c| c).count();
+                if known.is_empty() {
+                    f64::NAN
+                } else {
+                    hits as f64 / known.len() as f64
+                }
+            };
+            let areas: Vec<f64> = g
+                .iter()
+                .map(|r| r.area_90_m2)
+                .filter(|a| !a.is_nan())
+                .collect();
             SummaryRow {
+                error_p90_m: quantile(&err, 0.9),
+                error_max_m: err.iter().copied().fold(f64::NAN, f64::max),
+                cover_50_share: share(|r| r.covers_50),
+                cover_90_share: share(|r| r.covers_90),
+                area_90_median_m2: if areas.is_empty() {
+                    f64::NAN
+                } else {
+                    median(&areas)
+                },
+                wrong_converged: g
+                    .iter()
+                    .filter(|r| r.converged && r.error_m >= WRONG_CONVERGENCE_M)
+                    .count(),
+                iterations_median: median(&it),
                 runs: g.len(),
                 error_median_m: median(&err),
                 highest_error_mean_m: mean_of(|r| r.highest_error_m),
@@ -435,16 +527,15 @@ impl Study<'_> {
     }
 
     /// Runs the study: `room` gives a site's banks for a plume model (its index in
-    /// [`Study::models`]), `configure` a
-    /// run's settings for a feature, sensor and those banks, and `done` is called after each
-    /// run. Rows come back site by site, model by model, reality by reality, in plan order.
+    /// [`Study::models`]), `configure` a run's settings for a feature, sensor and plume model
+    /// (that index), and `done` is called after each run. Rows come back site by site, model by model, reality by reality, in plan order.
     ///
     /// # Errors
     /// The banks' errors (of the caller's type `E`), the surveys' and the runs' errors.
     pub fn run<E: From<Error>>(
         &self,
         mut room: impl FnMut(&Layout, usize) -> std::result::Result<RoomBanks, E>,
-        configure: impl Fn(Feature, SensorPreset, &RoomBanks) -> EpisodeConfig + Sync,
+        configure: impl Fn(Feature, SensorPreset, usize) -> EpisodeConfig + Sync,
         done: impl Fn() + Sync,
     ) -> std::result::Result<Vec<RunRow>, E> {
         let mut rows = Vec::with_capacity(self.total_runs());
@@ -471,7 +562,7 @@ impl Study<'_> {
                         site,
                         self.plan,
                         self.seed,
-                        |f, s| configure(f, s, &world.room),
+                        |f, s| configure(f, s, k),
                         &done,
                     )?);
                 }
@@ -570,6 +661,10 @@ pub fn summary_table(summary: &[SummaryRow]) -> String {
         "centre (m)",
         "iterations mean ± std",
         "converged",
+        "wrongly converged",
+        "50% region covers",
+        "90% region covers",
+        "90% region median (m²)",
     ];
     markdown_table(
         &header,
@@ -588,6 +683,10 @@ pub fn summary_table(summary: &[SummaryRow]) -> String {
                 format!("{:.2}", s.centre_error_mean_m),
                 format!("{:.1} ± {:.1}", s.iterations_mean, s.iterations_std),
                 format!("{:.0}%", 100.0 * s.converged_share),
+                s.wrong_converged.to_string(),
+                format!("{:.0}%", 100.0 * s.cover_50_share),
+                format!("{:.0}%", 100.0 * s.cover_90_share),
+                format!("{:.2}", s.area_90_median_m2),
             ]
         }),
     )

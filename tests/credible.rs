@@ -1,0 +1,200 @@
+//! Credible regions and the source's level, against their definitions computed by brute force:
+//! a region is the smallest set of cells holding the mass, the source's level is the smallest
+//! level whose region holds it, and a calibrated posterior gives uniform levels.
+
+use plumenet::ste::Uncertainty;
+use plumenet::ste::credible::{cell_area_m2, credible_set, outline};
+use proptest::prelude::*;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A grid of `nx` x `ny` candidates `spacing` apart, the first at half a spacing from 0.
+fn grid(nx: usize, ny: usize, spacing: f64) -> Vec<[f64; 2]> {
+    let at = |k: usize| (k as f64 + 0.5) * spacing;
+    (0..ny)
+        .flat_map(|j| (0..nx).map(move |i| [at(i), at(j)]))
+        .collect()
+}
+
+fn normalised(w: &[f64]) -> Vec<f64> {
+    let total: f64 = w.iter().sum();
+    w.iter().map(|v| v / total).collect()
+}
+
+#[test]
+fn regions_of_a_known_posterior() {
+    // Four cells with masses 0.5, 0.25, 0.1875, 0.0625 (in scrambled order; sums exact in
+    // binary floating point).
+    let candidates = grid(4, 1, 0.5);
+    let posterior = [0.1875, 0.5, 0.0625, 0.25];
+    let u = Uncertainty::of(&candidates, &posterior, candidates[1], Some(candidates[0]));
+    let r50 = u.region(0.5).unwrap();
+    let r90 = u.region(0.9).unwrap();
+    // 0.5 reaches 50% alone; 90% needs three cells (0.5 + 0.25 + 0.1875).
+    assert_eq!(r50.cells, vec![candidates[1]]);
+    assert_eq!(r90.cells, vec![candidates[1], candidates[3], candidates[0]]);
+    assert!((r50.area_m2 - 0.25).abs() < 1e-12);
+    assert!((r90.area_m2 - 3.0 * 0.25).abs() < 1e-12);
+    // The source's cell (mass 0.1875) is ranked after 0.5 and 0.25: level 0.75.
+    let s = u.source.unwrap();
+    assert!((s.level - 0.75).abs() < 1e-12);
+    assert!((s.log_posterior - 0.1875f64.ln()).abs() < 1e-12);
+    assert_eq!(r50.covers_source, Some(false));
+    assert_eq!(r90.covers_source, Some(true));
+    // Expected distance from the estimate: 0.1875 * 0.5 + 0.0625 * 0.5 + 0.25 * 1.0.
+    assert!((u.expected_distance_m - 0.375).abs() < 1e-12);
+}
+
+#[test]
+fn without_a_source_nothing_is_scored() {
+    let candidates = grid(3, 3, 0.25);
+    let posterior = vec![1.0 / 9.0; 9];
+    let u = Uncertainty::of(&candidates, &posterior, candidates[4], None);
+    assert!(u.source.is_none());
+    assert!(u.regions.iter().all(|r| r.covers_source.is_none()));
+    // A flat posterior over 9 cells: 5 cells reach 50%, 9 cells reach 90%.
+    assert_eq!(u.region(0.5).unwrap().cells.len(), 5);
+    assert_eq!(u.region(0.9).unwrap().cells.len(), 9);
+}
+
+#[test]
+fn a_source_on_a_cell_border_takes_the_most_probable_of_its_cells() {
+    // 2 x 2 cells of 0.5 m; the source at their common corner (0.5, 0.5).
+    let candidates = grid(2, 2, 0.5);
+    let posterior = [0.1, 0.2, 0.6, 0.1];
+    let u = Uncertainty::of(&candidates, &posterior, candidates[2], Some([0.5, 0.5]));
+    let s = u.source.unwrap();
+    assert_eq!(s.cell, candidates[2]);
+    assert_eq!(s.level, 0.0);
+    assert_eq!(u.region(0.5).unwrap().covers_source, Some(true));
+}
+
+#[test]
+fn cell_area_of_regular_grids() {
+    assert!((cell_area_m2(&grid(5, 3, 0.25)) - 0.0625).abs() < 1e-12);
+    assert!((cell_area_m2(&grid(5, 1, 0.5)) - 0.25).abs() < 1e-12);
+    assert_eq!(cell_area_m2(&grid(1, 1, 0.5)), 0.0);
+    // A grid with holes (cells left out inside obstacles) keeps its spacing.
+    let holed: Vec<[f64; 2]> = grid(6, 4, 0.25)
+        .into_iter()
+        .enumerate()
+        .filter(|(k, _)| k % 3 != 1)
+        .map(|(_, c)| c)
+        .collect();
+    assert!((cell_area_m2(&holed) - 0.0625).abs() < 1e-12);
+}
+
+#[test]
+fn outline_of_a_block_is_its_perimeter() {
+    // A 2 x 3 block of 0.5 m cells: perimeter 2 * (1.0 + 1.5) = 5 m in 10 unit sides.
+    let cells = grid(2, 3, 0.5);
+    let sides = outline(&cells, 0.5);
+    assert_eq!(sides.len(), 10);
+    let length: f64 = sides
+        .iter()
+        .map(|[a, b]| (b[0] - a[0]).hypot(b[1] - a[1]))
+        .sum();
+    assert!((length - 5.0).abs() < 1e-12);
+    // Every side lies on the block's boundary.
+    for [a, b] in &sides {
+        for p in [a, b] {
+            let on_x = p[0].abs() < 1e-12 || (p[0] - 1.0).abs() < 1e-12;
+            let on_y = p[1].abs() < 1e-12 || (p[1] - 1.5).abs() < 1e-12;
+            assert!(on_x || on_y, "{p:?} is inside the block");
+        }
+    }
+    assert!(outline(&[], 0.5).is_empty());
+}
+
+#[test]
+fn levels_of_a_calibrated_posterior_are_uniform() {
+    // Draw the source from the posterior itself: the region at level L then holds it with
+    // probability L up to the cells' discreteness (at most the largest cell mass), and the
+    // levels are uniform on [0, 1).
+    let candidates = grid(10, 8, 0.25);
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let runs = 4000;
+    let mut levels = Vec::with_capacity(runs);
+    let (mut hits50, mut hits90) = (0, 0);
+    let mut largest: f64 = 0.0;
+    for _ in 0..runs {
+        let w: Vec<f64> = (0..candidates.len())
+            .map(|_| rng.random::<f64>().powi(4))
+            .collect();
+        let p = normalised(&w);
+        largest = largest.max(p.iter().copied().fold(0.0, f64::max));
+        let u: f64 = rng.random();
+        let mut acc = 0.0;
+        let k = p.iter().position(|&q| {
+            acc += q;
+            acc > u
+        });
+        let source = candidates[k.unwrap_or(p.len() - 1)];
+        let un = Uncertainty::of(&candidates, &p, candidates[0], Some(source));
+        levels.push(un.source.unwrap().level);
+        hits50 += usize::from(un.region(0.5).unwrap().covers_source.unwrap());
+        hits90 += usize::from(un.region(0.9).unwrap().covers_source.unwrap());
+    }
+    // Binomial standard error at 4000 runs is under 0.008; allow 4 of them plus a cell.
+    let tolerance = 4.0 * (0.25f64 / runs as f64).sqrt() + largest;
+    let share = |h: usize| h as f64 / runs as f64;
+    assert!((share(hits50) - 0.5).abs() < tolerance, "{}", share(hits50));
+    assert!((share(hits90) - 0.9).abs() < tolerance, "{}", share(hits90));
+    // Kolmogorov-Smirnov distance of the levels from uniform, within the 1% critical value
+    // (1.63 / sqrt(n)) plus the cells' discreteness.
+    levels.sort_by(f64::total_cmp);
+    let ks = levels
+        .iter()
+        .enumerate()
+        .map(|(i, &l)| {
+            (l - i as f64 / runs as f64)
+                .abs()
+                .max((l - (i + 1) as f64 / runs as f64).abs())
+        })
+        .fold(0.0, f64::max);
+    assert!(
+        ks < 1.63 / (runs as f64).sqrt() + largest,
+        "KS distance {ks}"
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The region at a level is the smallest set reaching it: brute force over subsets
+    /// counts the fewest cells whose mass reaches the level.
+    #[test]
+    fn region_is_the_smallest_set_reaching_the_level(
+        w in prop::collection::vec(0.001f64..1.0, 1..9),
+        level in 0.05f64..0.99,
+    ) {
+        let p = normalised(&w);
+        let set = credible_set(&p, level);
+        let mass: f64 = set.iter().map(|&k| p[k]).sum();
+        prop_assert!(mass >= level - 1e-12);
+        let n = p.len();
+        let fewest = (0u32..1 << n)
+            .filter(|m| (0..n).filter(|&k| m >> k & 1 == 1).map(|k| p[k]).sum::<f64>() >= level - 1e-12)
+            .map(|m| m.count_ones() as usize)
+            .min()
+            .unwrap();
+        prop_assert_eq!(set.len(), fewest);
+    }
+
+    /// The region at level L covers the source exactly when the source's level is below L.
+    #[test]
+    fn covers_exactly_below_the_source_level(
+        w in prop::collection::vec(0.001f64..1.0, 2..30),
+        pick in 0usize..30,
+    ) {
+        let p = normalised(&w);
+        let candidates = grid(p.len(), 1, 0.25);
+        let source = candidates[pick % p.len()];
+        let u = Uncertainty::of(&candidates, &p, candidates[0], Some(source));
+        let level = u.source.unwrap().level;
+        for r in &u.regions {
+            prop_assert_eq!(r.covers_source, Some(level < r.level));
+            prop_assert_eq!(r.cells.contains(&source), level < r.level);
+        }
+    }
+}
