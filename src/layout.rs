@@ -341,6 +341,12 @@ impl Layout {
         self.spec.cell_m
     }
 
+    /// The floor area outside the obstacles (m^2).
+    pub fn free_area_m2(&self) -> f64 {
+        let free = self.solid().iter().filter(|&&s| !s).count();
+        free as f64 * self.cell() * self.cell()
+    }
+
     /// Inlet wind speed (m/s).
     pub fn wind_speed(&self) -> f64 {
         self.spec.wind.speed_mps

@@ -1107,6 +1107,14 @@ fn bad_likelihood_settings_fail_before_the_bank() {
             nan.as_str(),
         ),
         (
+            &["serve", "--fit-reference", "-1"][..],
+            "the fit reference must be positive, got Some(-1.0)",
+        ),
+        (
+            &["calibration", "--quick", "--target-area", "0"][..],
+            "the target area must be a positive number of square metres",
+        ),
+        (
             &["localize", "--source", "4.5,2.5", "--rank-tolerance", "0.5"][..],
             tolerance,
         ),

@@ -26,6 +26,8 @@ fn shipped_wind_tunnel_is_the_paper_arena() {
     assert_eq!(l.diffusivity(), DEFAULT_DIFFUSIVITY_M2PS);
     // Two 1.0 m x 1.25 m blocks = 8 x 10 cells each.
     assert_eq!(l.solid().iter().filter(|s| **s).count(), 2 * 8 * 10);
+    // Free floor: 72 m² less the two 1.25 m² blocks.
+    assert!((l.free_area_m2() - (72.0 - 2.0 * 1.25)).abs() < 1e-12);
 }
 
 #[test]

@@ -1034,9 +1034,19 @@ fn termination_needs_a_stable_concentrated_belief() {
         mass: 0.9,
         radius_m: 30.0,
         max_iterations: 30,
+        grow_with_room: true,
         stable_iterations: 1,
         target_area_m2: None,
     };
+    // The budget: 30 up to 72 m² of free floor, then with its square root (4 x 72 m²: twice);
+    // a fixed limit stays.
+    assert_eq!(loose.budget(50.0), 30);
+    assert_eq!(loose.budget(4.0 * 72.0), 60);
+    let fixed = Termination {
+        grow_with_room: false,
+        ..loose
+    };
+    assert_eq!(fixed.budget(4.0 * 72.0), 30);
     assert!(loose.concentrated(&est) && loose.converged(&est, &[]));
     // With a target area, the 90% region's area decides, not the entropy: the region's cells
     // at 0.0625 m² each, against targets just above and just below.

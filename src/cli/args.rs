@@ -219,6 +219,15 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     evidence_weight: Option<f64>,
+    /// Take the readings' noise level from the data: a best fit worse than this reference
+    /// weighs every reading down by their ratio.
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true
+    )]
+    fit_reference: Option<f64>,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
     /// sensor's response with its lower floor (the other features' lag and floor instead);
@@ -264,6 +273,9 @@ impl FeatureArgs {
         p.wander_deg = self.wind_wander;
         if let Some(w) = self.evidence_weight {
             p.evidence_weight = w;
+        }
+        if self.fit_reference.is_some() {
+            p.fit_reference = self.fit_reference;
         }
         if self.paper_rank {
             p = p.papers_rank();
@@ -345,9 +357,10 @@ pub struct RunArgs {
     /// A noise-free sensor.
     #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     noise_free: bool,
-    /// Iteration limit.
-    #[arg(long, default_value_t = Termination::default().max_iterations)]
-    max_iterations: usize,
+    /// Iteration limit [default: 30, growing with the square root of the free floor beyond
+    /// 72 m²].
+    #[arg(long)]
+    max_iterations: Option<usize>,
     /// Entropy (nats) below which the run may stop (default: the tuned value).
     #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     entropy_threshold: Option<f64>,
@@ -386,7 +399,10 @@ impl RunArgs {
         c.ste = ste.into_inner();
         c.planner = self.planner.into();
         c.sensor_noise = !self.noise_free;
-        c.termination.max_iterations = self.max_iterations;
+        if let Some(n) = self.max_iterations {
+            c.termination.max_iterations = n;
+            c.termination.grow_with_room = false;
+        }
         c.termination.stable_iterations = self.stable_iterations;
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;

@@ -117,7 +117,7 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
         &config.flight(),
         [source, start],
         a.seed,
-        config.termination.max_iterations,
+        config.termination.budget(layout.free_area_m2()),
         &mut server,
     )?;
     println!(

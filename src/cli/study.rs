@@ -188,11 +188,7 @@ pub struct ExperimentArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [SensorArg::Calibrated, SensorArg::SensorI, SensorArg::SensorII])]
     sensors: Vec<SensorArg>,
     #[command(flatten)]
-    plume: PlumeArgs,
-    #[command(flatten)]
-    overrides: FeatureArgs,
-    #[command(flatten)]
-    run: RunArgs,
+    estimator: StudySettings,
 }
 
 /// Whose paths a study's runs follow.
@@ -222,7 +218,11 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         (PathsArg::Planner, StartArg::Anywhere) => PathsRule::Planner(StartRule::Anywhere),
         (PathsArg::Planner, StartArg::Downwind) => PathsRule::Planner(StartRule::Downwind),
     };
-    let mut models = vec![if a.plume.solver { "solver" } else { "plumenet" }];
+    let mut models = vec![if a.estimator.plume.solver {
+        "solver"
+    } else {
+        "plumenet"
+    }];
     if a.with_solver {
         models.push("solver");
     }
@@ -240,6 +240,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         vec![a.reality.mismatch()?]
     };
     let robot = a
+        .estimator
         .run
         .config(
             SteParams::for_feature(Feature::Rank).validate()?,
@@ -254,9 +255,9 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     };
     let sites = load_sites(&files, a.rooms_of.as_deref(), a.rooms)?;
     for (_, layout) in &sites {
-        a.run.check(layout)?;
+        a.estimator.run.check(layout)?;
     }
-    let runner = Runner::new(&models, &features, &a.plume, &a.overrides, &a.run)?;
+    let runner = Runner::new(&models, &features, &a.estimator)?;
     let study = Study {
         sites: &sites,
         models: &models,
@@ -285,14 +286,20 @@ struct Runner<'a> {
     run: &'a RunArgs,
 }
 
+/// The plume model, likelihood and run flags a study shares with the single-run commands.
+#[derive(Debug, Args)]
+pub struct StudySettings {
+    #[command(flatten)]
+    plume: PlumeArgs,
+    #[command(flatten)]
+    overrides: FeatureArgs,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
 impl<'a> Runner<'a> {
-    fn new(
-        models: &[&str],
-        features: &'a [Feature],
-        plume: &'a PlumeArgs,
-        overrides: &FeatureArgs,
-        run: &'a RunArgs,
-    ) -> Result<Self> {
+    fn new(models: &[&str], features: &'a [Feature], settings: &'a StudySettings) -> Result<Self> {
+        let (plume, overrides, run) = (&settings.plume, &settings.overrides, &settings.run);
         let loaded = models
             .iter()
             .map(|&name| plume.model_of(name == "solver"))
@@ -347,11 +354,7 @@ pub struct CalibrationArgs {
     #[arg(long, default_value = "out/calibration")]
     out: PathBuf,
     #[command(flatten)]
-    plume: PlumeArgs,
-    #[command(flatten)]
-    overrides: FeatureArgs,
-    #[command(flatten)]
-    run: RunArgs,
+    estimator: StudySettings,
 }
 
 pub fn calibration(a: CalibrationArgs) -> Result<()> {
@@ -363,12 +366,13 @@ pub fn calibration(a: CalibrationArgs) -> Result<()> {
     let arena = Layout::load(&a.layout)?;
     let suites = calibration::suites(&arena, size)?;
     for (_, layout) in suites.iter().flat_map(|s| &s.sites) {
-        a.run.check(layout)?;
+        a.estimator.run.check(layout)?;
     }
     let models = ["plumenet", "solver"];
     let features = [Feature::Rank];
-    let runner = Runner::new(&models, &features, &a.plume, &a.overrides, &a.run)?;
+    let runner = Runner::new(&models, &features, &a.estimator)?;
     let robot = a
+        .estimator
         .run
         .config(runner.settings[0][0], SensorPreset::SensorII)
         .robot;

@@ -30,10 +30,11 @@ use crate::ste::baseline::Baselines;
 use crate::ste::credible::Uncertainty;
 use crate::ste::features::Feature;
 use crate::ste::planner::PlannerKind;
-use crate::ste::posterior::{Sample, SteParams, Termination};
+use crate::ste::posterior::{Sample, SteParams};
 use crate::ste::robot::{Occupancy, RobotParams, path_length};
 use crate::ste::sensor::SensorPreset;
 use crate::ste::session::{Iteration, Session, SessionConfig};
+use crate::ste::termination::Termination;
 
 /// The world a simulated run happens in: the room as the estimator sees it, the room's wind,
 /// and the reality the robot senses.
@@ -483,10 +484,11 @@ pub fn run_episode(
     let mut field = Field::start(&world.reality, &config.flight(), source, start, seed)?;
     let mut session = Session::new(&world.room, config.session(seed))?;
     let mut history = Vec::new();
+    let budget = session.budget();
     let next = steer_robot(
         &mut field,
         &config.robot,
-        config.termination.max_iterations,
+        budget,
         &mut session,
         |step, session| {
             history.push(IterationRecord {

@@ -2,8 +2,8 @@
 //!
 //! [`sensor`] models the MOX sensor, [`features`] extracts the four gas features, [`banks`]
 //! holds the plume model's banks of a room, [`sampler`] reads a bank at reading positions,
-//! [`params`] holds the estimator's settings, [`posterior`] the Bayesian filter and the
-//! termination rule, [`credible`] the credible regions and uncertainty every report states, [`robot`] the occupancy
+//! [`params`] holds the estimator's settings, [`posterior`] the Bayesian filter, [`termination`] the
+//! stopping rule, [`credible`] the credible regions and uncertainty every report states, [`robot`] the occupancy
 //! grid and A* paths, [`planner`] the belief-clustering and baseline planners, [`session`] the
 //! live session a robot drives and [`protocol`] its line protocol, [`replay`] the estimator
 //! over a logged run, [`baseline`] the simple guesses every report shows beside the estimate.
@@ -21,14 +21,16 @@ pub mod robot;
 pub mod sampler;
 pub mod sensor;
 pub mod session;
+pub mod termination;
 
 pub use banks::{Bank, RoomBanks};
 pub use baseline::Baselines;
 pub use credible::{CredibleRegion, SourceScore, Uncertainty};
 pub use features::{Feature, FeatureParams, FeatureTrack};
 pub use planner::{Planner, PlannerKind};
-pub use posterior::{Estimator, Sample, Sigmas, SteParams, Termination, ValidSteParams};
+pub use posterior::{Estimator, Sample, Sigmas, SteParams, ValidSteParams};
 pub use robot::{Occupancy, RobotParams, Sampling};
 pub use sampler::FieldSampler;
 pub use sensor::{MoxParams, MoxSensor, SensorPreset};
 pub use session::{Iteration, Session, SessionConfig};
+pub use termination::Termination;

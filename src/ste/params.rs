@@ -104,6 +104,14 @@ pub struct SteParams {
     /// reads as).
     #[serde(default = "independent_readings")]
     pub evidence_weight: f64,
+    /// When set, the readings' noise level is taken from the data: with the best candidate's
+    /// fit ([`crate::ste::posterior::Estimator::fit`]) above this reference, every reading's
+    /// evidence is weighed down by their ratio, so that a plume model that explains the
+    /// readings less well than it usually does (a reality it does not know) leaves a wider
+    /// posterior. `None` (what a record without this field reads as) weighs by
+    /// [`SteParams::evidence_weight`] alone.
+    #[serde(default)]
+    pub fit_reference: Option<f64>,
 }
 
 /// The rank feature's own settings: how readings near clean air tie, how far the plume model's
@@ -209,6 +217,7 @@ impl SteParams {
             background_time_s: default_background_time_s(),
             wander_deg: 0.0,
             evidence_weight: independent_readings(),
+            fit_reference: None,
         }
     }
 
@@ -257,6 +266,7 @@ impl SteParams {
             background_rise: 0.0,
             wander_deg: 0.0,
             evidence_weight: independent_readings(),
+            fit_reference: None,
             ..self.lag_in_concentration()
         }
     }
@@ -354,6 +364,15 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "the evidence weight must lie in (0, 1], got {}",
                 self.evidence_weight
+            )));
+        }
+        if self
+            .fit_reference
+            .is_some_and(|r| !(r.is_finite() && r > 0.0))
+        {
+            return Err(Error::Parameter(format!(
+                "the fit reference must be positive, got {:?}",
+                self.fit_reference
             )));
         }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {

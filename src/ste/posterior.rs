@@ -1,5 +1,5 @@
-//! The Bayesian estimator: likelihood, posterior over candidate cells, entropy, MAP and the
-//! termination rule.
+//! The Bayesian estimator: likelihood, posterior over candidate cells, entropy and MAP (the
+//! stopping rule is [`crate::ste::termination`]).
 //!
 //! For every candidate `theta_j` the estimated concentrations `c_i(theta_j)` at the sample
 //! positions come from the plume bank ([`FieldSampler`]) in ppm. Features `m_i` (readings) and
@@ -454,13 +454,34 @@ impl Estimator {
                 (factor * sum, parts)
             })
             .collect();
+        // The readings' noise level taken from the best fit: a model that explains them less
+        // well than the reference weighs each reading less.
+        let scale = match self.params.fit_reference {
+            None => 1.0,
+            Some(reference) => {
+                let best = slot_lik
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, _)| self.log_prior[k % positions].is_finite())
+                    .map(|(_, l)| l.0 / factor / n)
+                    .fold(f64::INFINITY, f64::min);
+                reference / best.max(reference)
+            }
+        };
+        let slot_lik: Vec<(f64, Vec<f64>)> = match scale {
+            1.0 => slot_lik,
+            c => slot_lik
+                .into_iter()
+                .map(|(total, parts)| (c * total, parts.into_iter().map(|p| c * p).collect()))
+                .collect(),
+        };
         let (log_lik, steady_share) = self.wander_marginal(&slot_lik, positions);
         let log_post: Vec<f64> = log_lik
             .chunks(positions)
             .flat_map(|bank| self.log_prior.iter().zip(bank).map(|(a, b)| a + b))
             .collect();
         let best = argmax(&log_post);
-        self.fit = Some(log_lik[best] / factor / n);
+        self.fit = Some(log_lik[best] / (factor * scale) / n);
         let joint = normalise(&log_post);
         self.posterior = (0..positions)
             .map(|j| joint.iter().skip(j).step_by(positions).sum())
@@ -700,91 +721,4 @@ pub fn argmax(v: &[f64]) -> usize {
             if x > best.1 { (k, x) } else { best }
         })
         .0
-}
-
-/// When a run stops.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Termination {
-    /// Posterior entropy (nats) below which the belief counts as concentrated.
-    pub entropy_nats: f64,
-    /// Mass of the credible set that must be confined.
-    pub mass: f64,
-    /// Every cell of that credible set lies within this distance of the MAP cell (m).
-    pub radius_m: f64,
-    /// Hard limit on iterations (the paper's 30 in simulation).
-    pub max_iterations: usize,
-    /// The belief must have been concentrated, with the MAP cell within `radius_m` of the
-    /// current one, for this many consecutive iterations (1 = the paper's rule alone).
-    pub stable_iterations: usize,
-    /// When set, the belief counts as concentrated when the credible region of `mass` covers
-    /// at most this area (m^2), instead of the entropy and radius rule. `None` (what a record
-    /// without this field reads as) keeps the entropy and radius rule.
-    #[serde(default)]
-    pub target_area_m2: Option<f64>,
-}
-
-impl Default for Termination {
-    fn default() -> Self {
-        Self {
-            entropy_nats: 1.5,
-            mass: 0.9,
-            radius_m: 0.75,
-            max_iterations: 30,
-            stable_iterations: 2,
-            target_area_m2: None,
-        }
-    }
-}
-
-impl Termination {
-    /// Whether the belief is concentrated: the credible region within the target area when
-    /// one is set, else entropy below the threshold and the credible set confined around the
-    /// MAP cell.
-    pub fn concentrated(&self, est: &Estimator) -> bool {
-        if est.is_empty() {
-            return false;
-        }
-        if let Some(target) = self.target_area_m2 {
-            let cells = est.credible_set(self.mass).len();
-            return cells as f64 * credible::cell_area_m2(est.candidates()) <= target;
-        }
-        if est.entropy() >= self.entropy_nats {
-            return false;
-        }
-        let [mx, my] = est.estimate();
-        est.credible_set(self.mass).iter().all(|&k| {
-            let [x, y] = est.candidates()[k];
-            (x - mx).hypot(y - my) <= self.radius_m
-        })
-    }
-
-    /// Checks the rule for a room of `area_m2` square metres.
-    ///
-    /// # Errors
-    /// [`Error::Parameter`] for a target area that is not positive or larger than the room.
-    pub fn check(&self, area_m2: f64) -> Result<()> {
-        match self.target_area_m2 {
-            Some(a) if !(a.is_finite() && a > 0.0 && a <= area_m2) => {
-                Err(Error::Parameter(format!(
-                    "the target area must be a positive number of square metres no larger than the room's {area_m2:.1}, got {a}"
-                )))
-            }
-            _ => Ok(()),
-        }
-    }
-
-    /// Whether to stop: the belief is concentrated and `recent` (whether it was concentrated,
-    /// and the MAP estimate, at each earlier iteration, oldest first) shows it concentrated
-    /// around the same place for the last `stable_iterations` iterations, this one included.
-    pub fn converged(&self, est: &Estimator, recent: &[(bool, [f64; 2])]) -> bool {
-        if !self.concentrated(est) {
-            return false;
-        }
-        let need = self.stable_iterations.saturating_sub(1);
-        let [mx, my] = est.estimate();
-        recent.len() >= need
-            && recent[recent.len() - need..]
-                .iter()
-                .all(|&(c, [x, y])| c && (x - mx).hypot(y - my) <= self.radius_m)
-    }
 }

@@ -16,9 +16,10 @@ use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::planner::{Planner, PlannerKind};
-use crate::ste::posterior::{Estimator, Sample, SteParams, Termination, prior_support};
+use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
 use crate::ste::robot::{Occupancy, RobotParams};
 use crate::ste::sampler::FieldSampler;
+use crate::ste::termination::Termination;
 
 /// Mass of the credible region an iteration reports.
 pub const CREDIBLE_MASS: f64 = 0.9;
@@ -246,7 +247,7 @@ impl Session {
     }
 
     fn plan(&mut self, position: Option<[f64; 2]>) -> Result<Iteration> {
-        let done = self.converged || self.iterations >= self.config.termination.max_iterations;
+        let done = self.converged || self.iterations >= self.budget();
         let plan = if done {
             None
         } else {
@@ -277,6 +278,12 @@ impl Session {
             goal: plan.as_ref().map(|p| p.goal),
             path: plan.map_or_else(Vec::new, |p| p.path),
         })
+    }
+
+    /// The iteration limit in this room ([`Termination::budget`] of its free floor).
+    pub fn budget(&self) -> usize {
+        let layout = self.samplers[0].layout();
+        self.config.termination.budget(layout.free_area_m2())
     }
 
     /// Forgets every reading and starts again from the prior (the planner's random stream

@@ -1,0 +1,118 @@
+//! When a run stops: the belief concentrated (its entropy and credible set, or the credible
+//! region's area) and stable, or the iteration budget spent.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::ste::credible;
+use crate::ste::posterior::Estimator;
+
+/// The free floor (m^2) up to which [`Termination::max_iterations`] holds as it is: the paper
+/// arena's whole floor.
+const BUDGET_AREA_M2: f64 = 72.0;
+
+/// When a run stops.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Termination {
+    /// Posterior entropy (nats) below which the belief counts as concentrated.
+    pub entropy_nats: f64,
+    /// Mass of the credible set that must be confined.
+    pub mass: f64,
+    /// Every cell of that credible set lies within this distance of the MAP cell (m).
+    pub radius_m: f64,
+    /// Hard limit on iterations (the paper's 30 in simulation), in a room of at most
+    /// `BUDGET_AREA_M2` of free floor when it grows with the room.
+    pub max_iterations: usize,
+    /// The limit grows with the square root of the room's free floor beyond
+    /// `BUDGET_AREA_M2` ([`Termination::budget`]): a larger room needs more legs to explore.
+    /// A record without this field reads as `false`, the fixed limit.
+    #[serde(default)]
+    pub grow_with_room: bool,
+    /// The belief must have been concentrated, with the MAP cell within `radius_m` of the
+    /// current one, for this many consecutive iterations (1 = the paper's rule alone).
+    pub stable_iterations: usize,
+    /// When set, the belief counts as concentrated when the credible region of `mass` covers
+    /// at most this area (m^2), instead of the entropy and radius rule. `None` (what a record
+    /// without this field reads as) keeps the entropy and radius rule.
+    #[serde(default)]
+    pub target_area_m2: Option<f64>,
+}
+
+impl Default for Termination {
+    fn default() -> Self {
+        Self {
+            entropy_nats: 1.5,
+            mass: 0.9,
+            radius_m: 0.75,
+            max_iterations: 30,
+            grow_with_room: true,
+            stable_iterations: 2,
+            target_area_m2: None,
+        }
+    }
+}
+
+impl Termination {
+    /// Whether the belief is concentrated: the credible region within the target area when
+    /// one is set, else entropy below the threshold and the credible set confined around the
+    /// MAP cell.
+    pub fn concentrated(&self, est: &Estimator) -> bool {
+        if est.is_empty() {
+            return false;
+        }
+        if let Some(target) = self.target_area_m2 {
+            let cells = est.credible_set(self.mass).len();
+            return cells as f64 * credible::cell_area_m2(est.candidates()) <= target;
+        }
+        if est.entropy() >= self.entropy_nats {
+            return false;
+        }
+        let [mx, my] = est.estimate();
+        est.credible_set(self.mass).iter().all(|&k| {
+            let [x, y] = est.candidates()[k];
+            (x - mx).hypot(y - my) <= self.radius_m
+        })
+    }
+
+    /// The iteration limit in a room with `free_area_m2` of free floor:
+    /// [`Termination::max_iterations`], times `sqrt(free_area_m2 / BUDGET_AREA_M2)` in a larger
+    /// room when the limit grows with the room.
+    pub fn budget(&self, free_area_m2: f64) -> usize {
+        let scale = (free_area_m2 / BUDGET_AREA_M2).sqrt();
+        if self.grow_with_room && scale > 1.0 {
+            (self.max_iterations as f64 * scale).ceil() as usize
+        } else {
+            self.max_iterations
+        }
+    }
+
+    /// Checks the rule for a room of `area_m2` square metres.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for a target area that is not positive or larger than the room.
+    pub fn check(&self, area_m2: f64) -> Result<()> {
+        match self.target_area_m2 {
+            Some(a) if !(a.is_finite() && a > 0.0 && a <= area_m2) => {
+                Err(Error::Parameter(format!(
+                    "the target area must be a positive number of square metres no larger than the room's {area_m2:.1}, got {a}"
+                )))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Whether to stop: the belief is concentrated and `recent` (whether it was concentrated,
+    /// and the MAP estimate, at each earlier iteration, oldest first) shows it concentrated
+    /// around the same place for the last `stable_iterations` iterations, this one included.
+    pub fn converged(&self, est: &Estimator, recent: &[(bool, [f64; 2])]) -> bool {
+        if !self.concentrated(est) {
+            return false;
+        }
+        let need = self.stable_iterations.saturating_sub(1);
+        let [mx, my] = est.estimate();
+        recent.len() >= need
+            && recent[recent.len() - need..]
+                .iter()
+                .all(|&(c, [x, y])| c && (x - mx).hypot(y - my) <= self.radius_m)
+    }
+}
