@@ -1,7 +1,9 @@
 //! The ROS 2 messages and conversions (always built; the DDS transport is the `ros2` feature's).
 
 use plumenet::ros::msg::{Covariance, Odometry, Quaternion, Time};
-use plumenet::ros::{Pairer, belief_grid, estimate_point, goal_pose};
+use plumenet::ros::{
+    Pairer, UNKNOWN_VARIANCE, belief_grid, estimate_point, estimate_with_covariance, goal_pose,
+};
 
 use crate::common::wind_tunnel;
 
@@ -31,6 +33,24 @@ fn times_and_headings_round_trip() {
         (p.point.x, p.point.y, p.header.frame_id.as_str()),
         (4.5, 2.5, "odom")
     );
+}
+
+#[test]
+fn the_estimates_covariance_is_the_posteriors_spread_about_it() {
+    // Half the mass at the estimate, a quarter 1 m east, a quarter 2 m north-east (2 m along x
+    // and y): E[dx^2] = 0.25 + 1, E[dy^2] = 1, E[dx dy] = 1.
+    let candidates = [[1.0, 1.0], [2.0, 1.0], [3.0, 3.0]];
+    let posterior = [0.5, 0.25, 0.25];
+    let m = estimate_with_covariance([1.0, 1.0], &candidates, &posterior, "map", 2.0);
+    let c = m.pose.covariance.0;
+    assert_eq!((c[0], c[1], c[6], c[7]), (1.25, 1.0, 1.0, 1.0));
+    for k in [14, 21, 28, 35] {
+        assert_eq!(c[k], UNKNOWN_VARIANCE);
+    }
+    let others = (0..36).filter(|k| ![0, 1, 6, 7, 14, 21, 28, 35].contains(k));
+    assert!(others.map(|k| c[k]).all(|v| v == 0.0));
+    assert_eq!((m.pose.pose.position.x, m.pose.pose.position.y), (1.0, 1.0));
+    assert_eq!(m.header.frame_id, "map");
 }
 
 #[test]
@@ -123,6 +143,7 @@ fn the_node_answers_over_dds_loopback() {
         goal_topic: "plumenet_test/goal_pose".into(),
         belief_topic: "plumenet_test/belief".into(),
         estimate_topic: "plumenet_test/estimate".into(),
+        uncertainty_topic: "plumenet_test/estimate_with_covariance".into(),
         ..NodeSettings::default()
     };
     let mut ste = SteNode::new(session, settings).unwrap();

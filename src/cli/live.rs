@@ -211,6 +211,10 @@ pub struct Ros2NodeArgs {
     /// Where the estimate goes (geometry_msgs/PointStamped).
     #[arg(long, default_value = "gas_source/estimate")]
     estimate_topic: String,
+    /// Where the estimate with the posterior's spread about it goes
+    /// (geometry_msgs/PoseWithCovarianceStamped).
+    #[arg(long, default_value = "gas_source/estimate_with_covariance")]
+    uncertainty_topic: String,
     /// Frame of poses, goals, grid and estimate.
     #[arg(long, default_value = "map")]
     frame_id: String,
@@ -261,6 +265,7 @@ pub fn ros2_node(a: Ros2NodeArgs) -> Result<()> {
         goal_topic: a.goal_topic,
         belief_topic: a.belief_topic,
         estimate_topic: a.estimate_topic,
+        uncertainty_topic: a.uncertainty_topic,
         frame_id: a.frame_id,
         spacing_m: a.session.plume.spacing(),
         goal_tolerance_m: a.goal_tolerance,

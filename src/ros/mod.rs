@@ -7,8 +7,9 @@
 //! pose (`geometry_msgs/PoseStamped` or `nav_msgs/Odometry`), pairs each reading with the pose
 //! at its time ([`Pairer`]: linear interpolation between the poses around it), and publishes the
 //! next goal (`geometry_msgs/PoseStamped`, facing along the last leg of its path, Nav2's
-//! `goal_pose` convention), the belief (`nav_msgs/OccupancyGrid`, so RViz shows it) and the
-//! estimate (`geometry_msgs/PointStamped`).
+//! `goal_pose` convention), the belief (`nav_msgs/OccupancyGrid`, so RViz shows it), the
+//! estimate (`geometry_msgs/PointStamped`) and the estimate with the posterior's spread about it
+//! (`geometry_msgs/PoseWithCovarianceStamped`).
 
 use std::collections::VecDeque;
 
@@ -211,6 +212,15 @@ pub mod msg {
         pub covariance: Covariance,
     }
 
+    /// `geometry_msgs/PoseWithCovarianceStamped`.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct PoseWithCovarianceStamped {
+        /// Time and frame.
+        pub header: Header,
+        /// The pose and its covariance.
+        pub pose: PoseWithCovariance,
+    }
+
     /// `geometry_msgs/Twist`.
     #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
     pub struct Twist {
@@ -270,7 +280,8 @@ pub mod msg {
 }
 
 use msg::{
-    Header, MapMetaData, OccupancyGrid, Point, PointStamped, Pose, PoseStamped, Quaternion, Time,
+    Covariance, Header, MapMetaData, OccupancyGrid, Point, PointStamped, Pose, PoseStamped,
+    PoseWithCovariance, PoseWithCovarianceStamped, Quaternion, Time,
 };
 
 fn header(frame_id: &str, t: f64) -> Header {
@@ -312,6 +323,54 @@ pub fn estimate_point(estimate: [f64; 2], frame_id: &str, t: f64) -> PointStampe
         },
     }
 }
+
+/// The estimate with the posterior's spread about it as a `PoseWithCovarianceStamped` (RViz
+/// draws it as an ellipse): the x and y entries of the covariance are the posterior's second
+/// moments about the estimate, `sum_j p_j (x_j - x)(y_j - y)` and the like, so that the
+/// ellipse grows with the posterior's own account of how far off the estimate is. The height
+/// and the orientation are unknown: their variances are [`UNKNOWN_VARIANCE`].
+pub fn estimate_with_covariance(
+    estimate: [f64; 2],
+    candidates: &[[f64; 2]],
+    posterior: &[f64],
+    frame_id: &str,
+    t: f64,
+) -> PoseWithCovarianceStamped {
+    let mut m = [[0.0; 2]; 2];
+    for (c, p) in candidates.iter().zip(posterior) {
+        let d = [c[0] - estimate[0], c[1] - estimate[1]];
+        for (i, row) in m.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v += p * d[i] * d[j];
+            }
+        }
+    }
+    let mut covariance = [0.0; 36];
+    covariance[0] = m[0][0];
+    covariance[1] = m[0][1];
+    covariance[6] = m[1][0];
+    covariance[7] = m[1][1];
+    for k in [14, 21, 28, 35] {
+        covariance[k] = UNKNOWN_VARIANCE;
+    }
+    PoseWithCovarianceStamped {
+        header: header(frame_id, t),
+        pose: PoseWithCovariance {
+            pose: Pose {
+                position: Point {
+                    x: estimate[0],
+                    y: estimate[1],
+                    z: 0.0,
+                },
+                orientation: Quaternion::from_yaw(0.0),
+            },
+            covariance: Covariance(covariance),
+        },
+    }
+}
+
+/// The variance of a pose component the estimate says nothing about (height, orientation).
+pub const UNKNOWN_VARIANCE: f64 = 1e9;
 
 /// The belief as an `OccupancyGrid` over the arena at the candidates' spacing: each
 /// candidate's cell holds its probability scaled so that the most probable is 100; cells

@@ -5,7 +5,8 @@
 //! messages' DDS source timestamps, so readings and poses share one clock), and feeds the
 //! placed readings to the session. The first iteration runs once a pose is known (it plans from
 //! the prior); later ones whenever the robot has come within the goal tolerance of its goal.
-//! Each iteration publishes the goal, the belief grid and the estimate.
+//! Each iteration publishes the goal, the belief grid, the estimate and the estimate with its
+//! covariance.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -15,8 +16,10 @@ use ros2_client::{
     Node, NodeName, NodeOptions, Publisher, Subscription,
 };
 
-use super::msg::{Float32, Float64, OccupancyGrid, Odometry, PointStamped, PoseStamped};
-use super::{Pairer, belief_grid, estimate_point, goal_pose};
+use super::msg::{
+    Float32, Float64, OccupancyGrid, Odometry, PointStamped, PoseStamped, PoseWithCovarianceStamped,
+};
+use super::{Pairer, belief_grid, estimate_point, estimate_with_covariance, goal_pose};
 use crate::error::{Error, Result};
 use crate::ste::session::{Iteration, Session};
 
@@ -59,6 +62,9 @@ pub struct NodeSettings {
     pub belief_topic: String,
     /// The estimate out (`geometry_msgs/PointStamped`).
     pub estimate_topic: String,
+    /// The estimate with the posterior's spread about it out
+    /// (`geometry_msgs/PoseWithCovarianceStamped`).
+    pub uncertainty_topic: String,
     /// The frame of poses, goals, grid and estimate.
     pub frame_id: String,
     /// Candidate spacing (m), the belief grid's resolution.
@@ -79,6 +85,7 @@ impl Default for NodeSettings {
             goal_topic: "goal_pose".into(),
             belief_topic: "gas_source/belief".into(),
             estimate_topic: "gas_source/estimate".into(),
+            uncertainty_topic: "gas_source/estimate_with_covariance".into(),
             frame_id: "map".into(),
             spacing_m: 0.25,
             goal_tolerance_m: 0.2,
@@ -119,6 +126,7 @@ pub struct SteNode {
     goal: Publisher<PoseStamped>,
     belief: Publisher<OccupancyGrid>,
     estimate: Publisher<PointStamped>,
+    uncertainty: Publisher<PoseWithCovarianceStamped>,
     settings: NodeSettings,
     session: Session,
     pairer: Pairer,
@@ -181,7 +189,14 @@ impl SteNode {
             "geometry_msgs",
             "PointStamped",
         )?;
-        let estimate = node.create_publisher(&t, qos).map_err(pub_err)?;
+        let estimate = node.create_publisher(&t, qos.clone()).map_err(pub_err)?;
+        let t = topic(
+            &node,
+            &settings.uncertainty_topic,
+            "geometry_msgs",
+            "PoseWithCovarianceStamped",
+        )?;
+        let uncertainty = node.create_publisher(&t, qos).map_err(pub_err)?;
         Ok(Self {
             _node: node,
             readings,
@@ -189,6 +204,7 @@ impl SteNode {
             goal,
             belief,
             estimate,
+            uncertainty,
             settings,
             session,
             pairer: Pairer::new(),
@@ -276,6 +292,11 @@ impl SteNode {
         self.estimate
             .publish(estimate_point(it.estimate, frame, now))
             .map_err(|e| ros_err("cannot publish the estimate", e))?;
+        let spread =
+            estimate_with_covariance(it.estimate, est.candidates(), est.posterior(), frame, now);
+        self.uncertainty
+            .publish(spread)
+            .map_err(|e| ros_err("cannot publish the estimate's covariance", e))?;
         Ok(())
     }
 
