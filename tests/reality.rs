@@ -430,7 +430,10 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
         .unwrap();
     let source = [4.625, 2.375];
     assert!(world.room.sampler.candidates().contains(&source));
-    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    // Readings taken as independent evidence: the nuisance's posterior is asked to pick the
+    // speed from one survey, which the tempered default weighs five times less.
+    let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    config.ste.evidence_weight = 1.0;
     assert_eq!(config.ste.background_rise, 0.5);
     let lag_in_c = config.ste.lag_in_concentration();
     assert_eq!(
@@ -894,7 +897,11 @@ fn the_wander_posterior_tells_a_wandering_wind_from_a_steady_one() {
             ..Mismatch::NONE
         })
         .unwrap();
+    // Readings taken as independent evidence, with the stopping rule that goes with them: the
+    // figures above are theirs.
     let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    config.ste.evidence_weight = 1.0;
+    config.termination = plumenet::ste::Termination::for_params(&config.ste);
     let plain = plumenet::sim::run_episode(world, &config, [5.1, 2.1], [15.0, 1.0], 0, false);
     assert_eq!(plain.unwrap().steady_wind, None);
     config.ste.wander_deg = 30.0;

@@ -361,11 +361,12 @@ pub struct RunArgs {
     /// 72 m²].
     #[arg(long)]
     max_iterations: Option<usize>,
-    /// Entropy (nats) below which the run may stop (default: the tuned value).
+    /// Stop on the entropy rule: entropy (nats) below which the run may stop [default: 1.5,
+    /// with an untempered likelihood].
     #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule")]
     entropy_threshold: Option<f64>,
-    /// Stop when the 90% credible region covers at most this area (m²), instead of the
-    /// entropy rule.
+    /// Stop when the 90% credible region covers at most this area (m²) [default: 1 with a
+    /// tempered likelihood (rank), else the entropy rule].
     #[arg(
         long,
         value_name = "M2",
@@ -397,6 +398,7 @@ impl RunArgs {
     pub fn config(&self, ste: ValidSteParams, sensor: SensorPreset) -> EpisodeConfig {
         let mut c = EpisodeConfig::new(ste.feature, sensor);
         c.ste = ste.into_inner();
+        c.termination = Termination::for_params(&c.ste);
         c.planner = self.planner.into();
         c.sensor_noise = !self.noise_free;
         if let Some(n) = self.max_iterations {
@@ -404,10 +406,14 @@ impl RunArgs {
             c.termination.grow_with_room = false;
         }
         c.termination.stable_iterations = self.stable_iterations;
+        // An entropy threshold asks for the entropy rule; a target area for the area rule.
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;
+            c.termination.target_area_m2 = None;
         }
-        c.termination.target_area_m2 = self.target_area;
+        if self.target_area.is_some() {
+            c.termination.target_area_m2 = self.target_area;
+        }
         if self.stop_sense_go {
             c.robot = RobotParams {
                 sampling: Sampling::stop_sense_go(),

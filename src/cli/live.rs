@@ -129,7 +129,7 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
         if run.last.converged {
             "converged"
         } else {
-            "not converged"
+            "unresolved (iteration budget spent)"
         },
         run.readings
     );

@@ -75,7 +75,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         if episode.converged {
             "converged"
         } else {
-            "not converged"
+            "unresolved (iteration budget spent)"
         },
         episode.iterations,
         episode.samples.len(),

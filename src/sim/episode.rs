@@ -162,15 +162,17 @@ impl EpisodeConfig {
         }
     }
 
-    /// The defaults: sense-in-motion, belief clustering, a noisy sensor, 60 s warm-up.
+    /// The defaults: sense-in-motion, belief clustering, a noisy sensor, 60 s warm-up, and the
+    /// stopping rule that goes with the feature's settings ([`Termination::for_params`]).
     pub fn new(feature: Feature, sensor: SensorPreset) -> Self {
+        let ste = SteParams::for_feature(feature);
         Self {
-            ste: SteParams::for_feature(feature),
+            ste,
             sensor,
             sensor_noise: true,
             robot: RobotParams::default(),
             planner: PlannerKind::BeliefClustering,
-            termination: Termination::default(),
+            termination: Termination::for_params(&ste),
             warmup_s: 60.0,
         }
     }

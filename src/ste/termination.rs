@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::ste::credible;
+use crate::ste::params::SteParams;
 use crate::ste::posterior::Estimator;
 
 /// The free floor (m^2) up to which [`Termination::max_iterations`] holds as it is: the paper
@@ -52,7 +53,21 @@ impl Default for Termination {
     }
 }
 
+/// The default target area of the 90% credible region (m^2) for a tempered likelihood.
+pub const TARGET_AREA_M2: f64 = 1.0;
+
 impl Termination {
+    /// The rule that goes with the estimator's settings: a tempered likelihood
+    /// ([`SteParams::evidence_weight`] below 1), whose credible regions are calibrated, stops
+    /// when its 90% region covers at most [`TARGET_AREA_M2`]; readings taken as independent
+    /// (whose regions are over-confident) stop on the entropy rule.
+    pub fn for_params(params: &SteParams) -> Self {
+        Self {
+            target_area_m2: (params.evidence_weight < 1.0).then_some(TARGET_AREA_M2),
+            ..Self::default()
+        }
+    }
+
     /// Whether the belief is concentrated: the credible region within the target area when
     /// one is set, else entropy below the threshold and the credible set confined around the
     /// MAP cell.
