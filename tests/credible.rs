@@ -198,3 +198,37 @@ proptest! {
         }
     }
 }
+
+/// Records written before the uncertainty and the tempered likelihood existed read as what
+/// they meant: readings independent, the entropy rule with a fixed budget, no regions.
+#[test]
+fn records_without_the_new_fields_stay_readable() {
+    use plumenet::ste::{Feature, SteParams, Termination};
+    use plumenet::study::experiment::RunRow;
+    let rank = SteParams::for_feature(Feature::Rank);
+    let mut v = serde_json::to_value(rank).unwrap();
+    for key in ["evidence_weight", "fit_reference"] {
+        v.as_object_mut().unwrap().remove(key).unwrap();
+    }
+    let old: SteParams = serde_json::from_value(v).unwrap();
+    assert_eq!((old.evidence_weight, old.fit_reference), (1.0, None));
+    let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
+    assert_eq!(t["target_area_m2"], 1.0);
+    for key in ["target_area_m2", "grow_with_room"] {
+        t.as_object_mut().unwrap().remove(key).unwrap();
+    }
+    let old: Termination = serde_json::from_value(t).unwrap();
+    assert_eq!((old.target_area_m2, old.grow_with_room), (None, false));
+    // A study's runs.csv from before the uncertainty columns.
+    let csv = "layout,model,reality,paths,feature,sensor,run,seed,source_x,source_y,start_x,\
+        start_y,estimate_x,estimate_y,error_m,highest_x,highest_y,highest_error_m,\
+        centre_error_m,iterations,converged,samples,distance_m,wall_time_s,fit\n\
+        wind-tunnel,solver,none,planner,rank,sensor-ii,0,1,1,2,15,1,1.2,2,0.2,2,2,1,4,12,true,\
+        100,10,0.1,0.01\n";
+    let mut reader = csv::Reader::from_reader(csv.as_bytes());
+    let rows: Vec<RunRow> = reader.deserialize().collect::<Result<_, _>>().unwrap();
+    assert_eq!(rows.len(), 1);
+    assert_eq!((rows[0].covers_50, rows[0].covers_90), (None, None));
+    assert!(rows[0].area_90_m2.is_nan() && rows[0].source_level.is_nan());
+    assert_eq!(rows[0].error_m, 0.2);
+}
