@@ -1,8 +1,8 @@
 //! The calibration benchmark: whether the posterior means what it says, on the suites users
-//! meet. Each suite is a [`Study`] (the paper arena, unseen rooms of every size class with the
-//! wind from each wall, the mismatch suite, and lawnmower surveys); each run records its
-//! credible regions and the smallest level whose region holds the source
-//! ([`crate::ste::SourceScore::level`]). Per suite and plume model the benchmark reports the
+//! meet. Each suite is a [`Study`](crate::study::experiment::Study) (the paper arena, unseen
+//! rooms of every size class with the wind from each wall, the mismatch suite, and lawnmower
+//! surveys); each run records its credible regions and the smallest level whose region holds
+//! the source ([`crate::ste::SourceScore::level`]). Per suite and plume model the benchmark reports the
 //! coverage of the 50% and 90% regions beside their areas (sharpness: a flat posterior covers
 //! but says nothing), the errors, runs declared converged far off, and a reliability diagram.
 
