@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::io;
 use crate::layout::Layout;
 use crate::sim::episode::{Episode, IterationRecord};
-use crate::ste::credible::{cell_area_m2, credible_set, outline};
+use crate::ste::credible::{cell_area_m2, outline, region_cells};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 use crate::ste::posterior::{Sample, SteParams};
 use crate::ste::replay::ReplayStep;
@@ -233,8 +233,7 @@ impl<'a> RunView<'a> {
         let error_m = self
             .source
             .map(|[x, y]| (f.estimate[0] - x).hypot(f.estimate[1] - y));
-        let region = credible_set(&f.posterior, 0.9);
-        let cells: Vec<[f64; 2]> = region.iter().map(|&k| self.candidates[k]).collect();
+        let cells = region_cells(self.candidates, &f.posterior, 0.9);
         let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
         let sides: Vec<[f64; 4]> = outline(&cells, self.spacing_m)
             .into_iter()

@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::report::{FieldPanel, FieldPlot, Panel, colour, legend, save_figure};
 use crate::sim::episode::Episode;
-use crate::ste::credible::{credible_set, outline};
+use crate::ste::credible::{outline, region_cells};
 use crate::ste::features::{Feature, FeatureParams, FeatureTrack};
 
 const TRAJECTORY: RGBColor = RGBColor(215, 215, 215);
@@ -106,8 +106,7 @@ where
             .label("true source")
             .legend(|(x, y)| Circle::new((x + 8, y), 5, SOURCE.filled()));
     }
-    let region = credible_set(p.posterior, REGION_LEVEL);
-    let cells: Vec<[f64; 2]> = region.iter().map(|&k| p.candidates[k]).collect();
+    let cells = region_cells(p.candidates, p.posterior, REGION_LEVEL);
     let sides = outline(&cells, p.spacing_m);
     let side = |[a, b]: [[f64; 2]; 2]| {
         PathElement::new([(a[0], a[1]), (b[0], b[1])], REGION.stroke_width(2))

@@ -143,6 +143,14 @@ pub fn credible_set(posterior: &[f64], level: f64) -> Vec<usize> {
     region(&ranked(posterior), posterior, level)
 }
 
+/// The candidates (m) of the credible region at `level` of `posterior`, most probable first.
+pub fn region_cells(candidates: &[[f64; 2]], posterior: &[f64], level: f64) -> Vec<[f64; 2]> {
+    credible_set(posterior, level)
+        .into_iter()
+        .map(|k| candidates[k])
+        .collect()
+}
+
 /// The rank in `order` of the source's cell: the candidate nearest `point`, or, when the
 /// point lies on the border of several cells (equally near, within a micrometre), the most
 /// probable of them. `None` without candidates.

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
+use crate::ste::credible::region_cells;
 use crate::ste::planner::{Planner, PlannerKind};
 use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
 use crate::ste::robot::{Occupancy, RobotParams};
@@ -267,12 +268,7 @@ impl Session {
             estimate: self.est.estimate(),
             entropy: self.est.entropy(),
             fit: self.est.fit(),
-            credible_region: self
-                .est
-                .credible_set(CREDIBLE_MASS)
-                .into_iter()
-                .map(|k| candidates[k])
-                .collect(),
+            credible_region: region_cells(candidates, self.est.posterior(), CREDIBLE_MASS),
             converged: self.converged,
             done,
             goal: plan.as_ref().map(|p| p.goal),

@@ -23,7 +23,7 @@ use crate::sim::episode::StartRule;
 use crate::sim::reality::Mismatch;
 use crate::sim::seed::derive_seed;
 use crate::stats::{mean_std, median, quantile};
-use crate::study::experiment::{PathsRule, RunRow, WRONG_CONVERGENCE_M};
+use crate::study::experiment::{PathsRule, RunRow, coverage};
 use crate::surrogate::data::{SIZE_CLASSES, size_class};
 
 /// How many runs the benchmark makes.
@@ -186,7 +186,7 @@ pub struct CalibrationRow {
     pub error_p90_m: f64,
     /// Largest error (m).
     pub error_max_m: f64,
-    /// Runs declared converged [`WRONG_CONVERGENCE_M`] or more off.
+    /// Runs declared converged [`crate::study::experiment::WRONG_CONVERGENCE_M`] or more off.
     pub wrong_converged: usize,
     /// Planner runs that reached their iteration budget without converging.
     pub unresolved: usize,
@@ -199,16 +199,14 @@ pub struct CalibrationRow {
 impl CalibrationRow {
     /// The row of one suite's runs of one plume model.
     pub fn of(suite: &str, model: &str, runs: &[&RunRow]) -> Self {
-        let n = runs.len().max(1) as f64;
         let error: Vec<f64> = runs.iter().map(|r| r.error_m).collect();
-        let share = |hit: fn(&RunRow) -> bool| runs.iter().filter(|r| hit(r)).count() as f64 / n;
         let column = |f: fn(&RunRow) -> f64| runs.iter().map(|r| f(r)).collect::<Vec<f64>>();
         Self {
             suite: suite.into(),
             model: model.into(),
             runs: runs.len(),
-            cover_50: share(|r| r.covers_50 == Some(true)),
-            cover_90: share(|r| r.covers_90 == Some(true)),
+            cover_50: coverage(runs, |r| r.covers_50),
+            cover_90: coverage(runs, |r| r.covers_90),
             area_50_median_m2: median(&column(|r| r.area_50_m2)),
             area_90_median_m2: median(&column(|r| r.area_90_m2)),
             log_p_source_median: median(&column(|r| r.log_p_source)),
@@ -216,10 +214,7 @@ impl CalibrationRow {
             error_median_m: median(&error),
             error_p90_m: quantile(&error, 0.9),
             error_max_m: error.iter().copied().fold(f64::NAN, f64::max),
-            wrong_converged: runs
-                .iter()
-                .filter(|r| r.converged && r.error_m >= WRONG_CONVERGENCE_M)
-                .count(),
+            wrong_converged: runs.iter().filter(|r| r.wrongly_converged()).count(),
             unresolved: runs
                 .iter()
                 .filter(|r| r.paths == "planner" && !r.converged)
@@ -235,18 +230,23 @@ impl CalibrationRow {
 pub fn calibration_rows(suites: &[(String, Vec<RunRow>)]) -> Vec<CalibrationRow> {
     let mut out = Vec::new();
     for (name, rows) in suites {
-        let mut models: Vec<&str> = Vec::new();
-        for r in rows {
-            if !models.contains(&r.model.as_str()) {
-                models.push(&r.model);
-            }
-        }
-        for model in models {
+        for model in models_in_order(rows) {
             let runs: Vec<&RunRow> = rows.iter().filter(|r| r.model == model).collect();
-            out.push(CalibrationRow::of(name, model, &runs));
+            out.push(CalibrationRow::of(name, &model, &runs));
         }
     }
     out
+}
+
+/// The plume models of `rows`, in the order they first appear.
+fn models_in_order<'a>(rows: impl IntoIterator<Item = &'a RunRow>) -> Vec<String> {
+    let mut models: Vec<String> = Vec::new();
+    for r in rows {
+        if !models.contains(&r.model) {
+            models.push(r.model.clone());
+        }
+    }
+    models
 }
 
 /// The benchmark's table in Markdown.
@@ -297,12 +297,7 @@ const BINS: usize = 10;
 /// nominal coverage (a calibrated posterior lies on the diagonal), and the histogram of the
 /// levels at which the regions first hold the source (flat at 1 when calibrated).
 pub fn reliability_panels(suites: &[(String, Vec<RunRow>)]) -> [CurvePanel; 2] {
-    let mut models: Vec<String> = Vec::new();
-    for r in suites.iter().flat_map(|(_, rows)| rows) {
-        if !models.contains(&r.model) {
-            models.push(r.model.clone());
-        }
-    }
+    let models = models_in_order(suites.iter().flat_map(|(_, rows)| rows));
     let levels = |model: &str| -> Vec<f64> {
         let rows = suites.iter().flat_map(|(_, rows)| rows);
         rows.filter(|r| r.model == model && r.source_level.is_finite())

@@ -121,6 +121,25 @@ fn not_recorded() -> f64 {
 /// A run declared converged this far or farther from the source (m) is confidently wrong.
 pub const WRONG_CONVERGENCE_M: f64 = 1.5;
 
+impl RunRow {
+    /// Whether the run declared convergence [`WRONG_CONVERGENCE_M`] or more from the source.
+    pub fn wrongly_converged(&self) -> bool {
+        self.converged && self.error_m >= WRONG_CONVERGENCE_M
+    }
+}
+
+/// The share of `runs` whose credible region (`covers` picks which) holds the source, among
+/// the runs that record it; NaN when none does.
+pub fn coverage(runs: &[&RunRow], covers: fn(&RunRow) -> Option<bool>) -> f64 {
+    let known: Vec<bool> = runs.iter().filter_map(|r| covers(r)).collect();
+    let hits = known.iter().filter(|&&c| c).count();
+    if known.is_empty() {
+        f64::NAN
+    } else {
+        hits as f64 / known.len() as f64
+    }
+}
+
 /// Mean and standard deviation of error and iterations of one layout, plume model, reality,
 /// path kind, feature and sensor, with the baselines' mean errors on the same runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -398,15 +417,6 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
             let mean_of =
                 |f: fn(&RunRow) -> f64| mean_std(&g.iter().map(|r| f(r)).collect::<Vec<_>>()).0;
             let [layout, model, reality, paths, feature, sensor] = k;
-            let share = |covers: fn(&RunRow) -> Option<bool>| {
-                let known: Vec<bool> = g.iter().filter_map(|r| covers(r)).collect();
-                let hits = known.iter().filter(|&&c| c).count();
-                if known.is_empty() {
-                    f64::NAN
-                } else {
-                    hits as f64 / known.len() as f64
-                }
-            };
             let areas: Vec<f64> = g
                 .iter()
                 .map(|r| r.area_90_m2)
@@ -415,17 +425,14 @@ pub fn summarize(rows: &[RunRow]) -> Vec<SummaryRow> {
             SummaryRow {
                 error_p90_m: quantile(&err, 0.9),
                 error_max_m: err.iter().copied().fold(f64::NAN, f64::max),
-                cover_50_share: share(|r| r.covers_50),
-                cover_90_share: share(|r| r.covers_90),
+                cover_50_share: coverage(&g, |r| r.covers_50),
+                cover_90_share: coverage(&g, |r| r.covers_90),
                 area_90_median_m2: if areas.is_empty() {
                     f64::NAN
                 } else {
                     median(&areas)
                 },
-                wrong_converged: g
-                    .iter()
-                    .filter(|r| r.converged && r.error_m >= WRONG_CONVERGENCE_M)
-                    .count(),
+                wrong_converged: g.iter().filter(|r| r.wrongly_converged()).count(),
                 iterations_median: median(&it),
                 runs: g.len(),
                 error_median_m: median(&err),
