@@ -2,7 +2,8 @@
 
 use std::process::{Command, Output};
 
-use plumenet::layout::Layout;
+use plumenet::frame::Frame;
+use plumenet::layout::{Layout, WindFrom};
 
 /// The shipped paper arena.
 pub fn wind_tunnel() -> Layout {
@@ -13,6 +14,14 @@ pub fn wind_tunnel() -> Layout {
 pub fn empty_tunnel() -> Layout {
     Layout::from_json(r#"{"width_m":18,"height_m":4,"cell_m":0.125,"wind":{"speed_mps":0.75}}"#)
         .expect("empty arena is valid")
+}
+
+/// `canonical` (wind from the west) turned so that its wind comes from `from`: the layout whose
+/// canonical frame is `canonical`.
+pub fn turned(canonical: &Layout, from: WindFrom) -> Layout {
+    Frame::turning(canonical, from)
+        .layout_from_canonical(canonical)
+        .unwrap()
 }
 
 /// A path inside the repository.

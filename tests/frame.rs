@@ -12,7 +12,7 @@ use plumenet::sim::{EpisodeConfig, World, run_episode};
 use plumenet::ste::{Feature, SensorPreset};
 use plumenet::surrogate::Surrogate;
 
-use crate::common::{repo_path, wind_tunnel};
+use crate::common::{repo_path, turned, wind_tunnel};
 
 /// A small arena (6 m x 3 m, 0.25 m cells) with wind from the west and one block.
 fn west() -> Layout {
@@ -21,14 +21,6 @@ fn west() -> Layout {
             "obstacles":[{"x_min":2,"y_min":0.5,"x_max":3,"y_max":1.5}]}"#,
     )
     .unwrap()
-}
-
-/// `canonical` (wind from the west) turned so that its wind comes from `from`: the layout whose
-/// canonical frame is `canonical`.
-fn turned(canonical: &Layout, from: WindFrom) -> Layout {
-    Frame::turning(canonical, from)
-        .layout_from_canonical(canonical)
-        .unwrap()
 }
 
 #[test]

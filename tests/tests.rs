@@ -18,5 +18,6 @@ mod service;
 mod ste;
 mod surrogate;
 mod transport;
+mod verification;
 mod viewer;
 mod wind;

@@ -1,4 +1,5 @@
-//! Mean concentration: analytic point source, mass balance, obstacles, bank consistency.
+//! Mean concentration: analytic point source, obstacles, bank consistency (convergence order and
+//! mass balance are verified in `verification`).
 
 use plumenet::physics::analytic::{point_source_between_walls, relative_l2_error};
 use plumenet::physics::scheme::Scheme;
@@ -49,22 +50,6 @@ fn analytic_reference_is_mirror_symmetric_about_both_walls() {
             assert!(
                 (outside - inside).abs() <= 1e-9 * inside,
                 "x = {x}, d = {d}"
-            );
-        }
-    }
-}
-
-#[test]
-fn outlet_flux_equals_the_release_rate_with_and_without_obstacles() {
-    for l in [empty_tunnel(), wind_tunnel()] {
-        let w = WindField::solve(&l).unwrap();
-        let t = Transport::new(&l, &w).unwrap();
-        for src in [(3.0, 2.0), (9.0, 0.3), (12.0, 3.8)] {
-            let field = t.solve(src.0, src.1).unwrap();
-            let out = t.outlet_flux(&field);
-            assert!(
-                (out - 1.0).abs() < 0.02,
-                "source {src:?}: outlet flux {out}"
             );
         }
     }

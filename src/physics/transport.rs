@@ -15,8 +15,9 @@
 //! are the wind solver's exactly divergence-free face velocities, so the scheme conserves mass to
 //! round-off. Face coefficients follow Patankar's generalised form
 //! `a_nb = D A(|Pe|) + max(-F, 0)` with the cell Peclet number `Pe = F / D`; [`Scheme`] selects
-//! `A`. The default [`Scheme::Central`] is second-order (its error against the analytic solution
-//! is measured in the tests and by `plumenet bench`); where a face's Peclet number exceeds 2 it
+//! `A`. The default [`Scheme::Central`] is second-order (its observed order on a manufactured
+//! solution is in `docs/method.md`, and its error against the analytic point source is measured
+//! by `plumenet bench`); where a face's Peclet number exceeds 2 it
 //! falls back to the power-law profile, which keeps the matrix an M-matrix.
 //!
 //! **Point source.** The unit rate is spread over the four cell centres around the source with
@@ -52,6 +53,9 @@ pub struct Transport {
     index: Array2<usize>,
     /// `(row, outflow F in m^2/s)` for each outlet face.
     outlet: Vec<(usize, f64)>,
+    /// `(row, conductance in m^2/s)` for each inlet face: the gas lost upwind per unit of the
+    /// first cell's concentration.
+    inlet: Vec<(usize, f64)>,
     lu: SparseLu,
     matrix: SparseColMat<usize, f64>,
     /// The layout as given (sources are checked against it).
@@ -94,6 +98,7 @@ impl Transport {
         let d = layout.diffusivity();
         let mut trip = Vec::with_capacity(5 * n);
         let mut outlet = Vec::new();
+        let mut inlet = Vec::new();
         for j in 0..ny {
             for i in 0..nx {
                 let c = index[[j, i]];
@@ -125,7 +130,9 @@ impl Transport {
                 if i == 0 {
                     // Inlet: c = 0 half a cell away (conductance 2D), inflow carries no gas.
                     let inflow = wind.u[[j, 0]] * h;
-                    diag += 2.0 * d * scheme.profile(inflow / (2.0 * d)) + (-inflow).max(0.0);
+                    let loss = 2.0 * d * scheme.profile(inflow / (2.0 * d)) + (-inflow).max(0.0);
+                    diag += loss;
+                    inlet.push((j, loss));
                 }
                 if i + 1 == nx {
                     // Outlet: advective outflow only; any backflow brings clean air.
@@ -143,6 +150,7 @@ impl Transport {
             cell: h,
             index,
             outlet,
+            inlet,
             lu,
             matrix,
             layout: real.clone(),
@@ -195,7 +203,8 @@ impl Transport {
         Ok(weights.into_iter().map(|(k, w)| (k, w / total)).collect())
     }
 
-    /// Mean concentration (units/m^2) of a unit source at `(x, y)`, shape `[ny, nx]`.
+    /// Mean concentration (units/m^2) of a unit source at `(x, y)`, shape `[ny, nx]`, rounded to
+    /// single precision as in a bank.
     ///
     /// # Errors
     /// [`Error::Source`] when the position is not in free space.
@@ -251,5 +260,13 @@ impl Transport {
         let field = self.frame.cells_to_canonical(field.view());
         let last = self.shape.1 - 1;
         self.outlet.iter().map(|&(j, f)| f * field[[j, last]]).sum()
+    }
+
+    /// Gas flux (units/s) lost upwind through the inlet face (`c = 0` beyond it) for a field of
+    /// this layout. With [`Transport::outlet_flux`] it balances the release: the two add up to
+    /// the source's rate to round-off, the discrete conservation law.
+    pub fn inlet_flux(&self, field: &Array2<f64>) -> f64 {
+        let field = self.frame.cells_to_canonical(field.view());
+        self.inlet.iter().map(|&(j, a)| a * field[[j, 0]]).sum()
     }
 }

@@ -362,114 +362,7 @@ impl WindField {
     /// [`Error::Solver`] when the pressure matrix is singular or the iteration does not converge
     /// within `config.max_steps`; [`Error::Parameter`] for a bad configuration.
     pub fn solve_with(layout: &Layout, config: &WindConfig) -> Result<Self> {
-        let frame = Frame::of(layout);
-        if !frame.is_identity() {
-            let canonical = Self::solve_with(&frame.layout_to_canonical(layout)?, config)?;
-            return Ok(Self::from_canonical(&frame, &canonical));
-        }
-        if !(config.tolerance > 0.0 && config.courant > 0.0) {
-            return Err(Error::Parameter(format!(
-                "bad wind solver settings {config:?}"
-            )));
-        }
-        let mac = Mac::new(layout)?;
-        let (nx, ny, dx) = (mac.nx, mac.ny, mac.dx);
-        let speed = layout.wind_speed();
-        let nu = layout.eddy_viscosity();
-        let mut u = Array2::from_shape_fn((ny, nx + 1), |(j, i)| {
-            let inlet_open = i > 0 || !layout.is_solid(j, 0);
-            if mac.u_face[[j, i]] == Face::Free || (i == 0 && inlet_open) {
-                speed
-            } else {
-                0.0
-            }
-        });
-        let mut v = Array2::zeros((ny + 1, nx));
-        mac.project(&mut u, &mut v);
-
-        let scale = speed * speed / layout.height();
-        let mut pressure = vec![0.0; mac.n_p];
-        let mut ru = Array2::zeros(u.dim());
-        let mut rv = Array2::zeros(v.dim());
-        let [mut ue, mut uw, mut un, mut us] = std::array::from_fn(|_| Array2::zeros(u.dim()));
-        let [mut ve, mut vw, mut vn, mut vs] = std::array::from_fn(|_| Array2::zeros(v.dim()));
-        for step in 1..=config.max_steps {
-            let umax = u.iter().chain(v.iter()).fold(speed, |m, &x| m.max(x.abs()));
-            let dt = config.courant * dx / umax;
-            for j in 0..ny {
-                for i in 1..=nx {
-                    if mac.u_face[[j, i]] == Face::Fixed {
-                        continue;
-                    }
-                    let c = u[[j, i]];
-                    let east = if i < nx { u[[j, i + 1]] } else { c };
-                    let (il, ir) = (i - 1, i.min(nx - 1));
-                    let vbar = 0.25 * (v[[j, il]] + v[[j, ir]] + v[[j + 1, il]] + v[[j + 1, ir]]);
-                    let (e, w) = coefficients(c, dx, nu);
-                    let (n, s) = coefficients(vbar, dx, nu);
-                    (ue[[j, i]], uw[[j, i]], un[[j, i]], us[[j, i]]) = (e, w, n, s);
-                    ru[[j, i]] = e * (east - c)
-                        + w * (u[[j, i - 1]] - c)
-                        + n * (mac.u_neighbour_y(&u, j, i, true) - c)
-                        + s * (mac.u_neighbour_y(&u, j, i, false) - c);
-                }
-            }
-            for j in 1..ny {
-                for i in 0..nx {
-                    if mac.v_face[[j, i]] == Face::Fixed {
-                        continue;
-                    }
-                    let c = v[[j, i]];
-                    let ubar =
-                        0.25 * (u[[j - 1, i]] + u[[j - 1, i + 1]] + u[[j, i]] + u[[j, i + 1]]);
-                    let (e, w) = coefficients(ubar, dx, nu);
-                    let (n, s) = coefficients(c, dx, nu);
-                    (ve[[j, i]], vw[[j, i]], vn[[j, i]], vs[[j, i]]) = (e, w, n, s);
-                    rv[[j, i]] = e * (mac.v_neighbour_x(&v, j, i, true) - c)
-                        + w * (mac.v_neighbour_x(&v, j, i, false) - c)
-                        + n * (v[[j + 1, i]] - c)
-                        + s * (v[[j - 1, i]] - c);
-                }
-            }
-            // Steady momentum residual with the current pressure.
-            mac.add_gradient(&mut ru, &mut rv, &pressure, -1.0);
-            let residual = ru
-                .iter()
-                .chain(rv.iter())
-                .fold(0.0_f64, |m, &r| m.max(r.abs()))
-                / scale;
-            if !residual.is_finite() {
-                return Err(Error::Solver(format!(
-                    "wind iteration diverged at step {step}"
-                )));
-            }
-            if residual < config.tolerance {
-                return Ok(Self {
-                    u,
-                    v,
-                    cell: dx,
-                    steps: step,
-                    residual,
-                });
-            }
-            // Delta form: (I - dt Ax)(I - dt Ay) delta = dt R, then project; p += phi / dt.
-            ru *= dt;
-            rv *= dt;
-            sweep(&mut ru, &mac.u_face, &uw, &ue, dt, Axis(1));
-            sweep(&mut ru, &mac.u_face, &us, &un, dt, Axis(0));
-            sweep(&mut rv, &mac.v_face, &vw, &ve, dt, Axis(1));
-            sweep(&mut rv, &mac.v_face, &vs, &vn, dt, Axis(0));
-            u += &ru;
-            v += &rv;
-            let phi = mac.project(&mut u, &mut v);
-            for (p, f) in pressure.iter_mut().zip(&phi) {
-                *p += f / dt;
-            }
-        }
-        Err(Error::Solver(format!(
-            "wind did not reach a steady state in {} steps (raise the eddy viscosity)",
-            config.max_steps
-        )))
+        Ok(SteadyFlow::solve(layout, config, None)?.wind)
     }
 
     /// The part of this wind turned a right angle to its left (`(u, v)` to `(-v, u)`) that the
@@ -543,6 +436,176 @@ impl WindField {
             bilinear(&self.u, x / h, y / h - 0.5),
             bilinear(&self.v, x / h - 0.5, y / h),
         )
+    }
+}
+
+/// A body force per unit mass (m/s^2) at a point `(x, y)`, as `(f_x, f_y)`.
+pub type BodyForce<'a> = &'a (dyn Fn(f64, f64) -> (f64, f64) + Sync);
+
+/// A steady solution of the wind solver with its pressure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SteadyFlow {
+    /// The velocity field.
+    pub wind: WindField,
+    /// Kinematic pressure (m^2/s^2, pressure over density) at the cell centres, `[ny, nx]`, zero
+    /// on the outlet face, NaN in obstacle cells.
+    pub pressure: Array2<f64>,
+}
+
+impl SteadyFlow {
+    /// Solves the steady wind of a layout, optionally driven by a body force as well as the
+    /// inlet: `(u . grad) u = -grad p + nu lap u + f`. The force serves verification with
+    /// manufactured solutions (any smooth field is the steady solution of the force that its
+    /// residual calls for); the room's wind has none.
+    ///
+    /// # Errors
+    /// [`Error::Solver`] when the pressure matrix is singular or the iteration does not converge
+    /// within `config.max_steps`; [`Error::Parameter`] for a bad configuration.
+    pub fn solve(layout: &Layout, config: &WindConfig, force: Option<BodyForce>) -> Result<Self> {
+        let frame = Frame::of(layout);
+        if !frame.is_identity() {
+            // The force is turned with the room: canonical point and components.
+            let turned = force.map(|f| {
+                move |xc: f64, yc: f64| {
+                    let (x, y) = frame.from_canonical(xc, yc);
+                    let (fx, fy) = f(x, y);
+                    frame.vector_to_canonical(fx, fy)
+                }
+            });
+            let canonical = Self::solve(
+                &frame.layout_to_canonical(layout)?,
+                config,
+                turned
+                    .as_ref()
+                    .map(|f| f as &(dyn Fn(f64, f64) -> (f64, f64) + Sync)),
+            )?;
+            return Ok(Self {
+                wind: WindField::from_canonical(&frame, &canonical.wind),
+                pressure: frame.cells_from_canonical(canonical.pressure.view()),
+            });
+        }
+        if !(config.tolerance > 0.0 && config.courant > 0.0) {
+            return Err(Error::Parameter(format!(
+                "bad wind solver settings {config:?}"
+            )));
+        }
+        let mac = Mac::new(layout)?;
+        let (nx, ny, dx) = (mac.nx, mac.ny, mac.dx);
+        let speed = layout.wind_speed();
+        let nu = layout.eddy_viscosity();
+        let mut u = Array2::from_shape_fn((ny, nx + 1), |(j, i)| {
+            let inlet_open = i > 0 || !layout.is_solid(j, 0);
+            if mac.u_face[[j, i]] == Face::Free || (i == 0 && inlet_open) {
+                speed
+            } else {
+                0.0
+            }
+        });
+        let mut v = Array2::zeros((ny + 1, nx));
+        mac.project(&mut u, &mut v);
+        // The body force on every free face (zero without one).
+        let on_faces = |faces: &Array2<Face>, offset: (f64, f64), pick: fn((f64, f64)) -> f64| {
+            Array2::from_shape_fn(faces.dim(), |(j, i)| match (faces[[j, i]], force) {
+                (Face::Free, Some(f)) => {
+                    pick(f((i as f64 + offset.0) * dx, (j as f64 + offset.1) * dx))
+                }
+                _ => 0.0,
+            })
+        };
+        let fu = on_faces(&mac.u_face, (0.0, 0.5), |f| f.0);
+        let fv = on_faces(&mac.v_face, (0.5, 0.0), |f| f.1);
+
+        let scale = speed * speed / layout.height();
+        let mut pressure = vec![0.0; mac.n_p];
+        let mut ru = Array2::zeros(u.dim());
+        let mut rv = Array2::zeros(v.dim());
+        let [mut ue, mut uw, mut un, mut us] = std::array::from_fn(|_| Array2::zeros(u.dim()));
+        let [mut ve, mut vw, mut vn, mut vs] = std::array::from_fn(|_| Array2::zeros(v.dim()));
+        for step in 1..=config.max_steps {
+            let umax = u.iter().chain(v.iter()).fold(speed, |m, &x| m.max(x.abs()));
+            let dt = config.courant * dx / umax;
+            for j in 0..ny {
+                for i in 1..=nx {
+                    if mac.u_face[[j, i]] == Face::Fixed {
+                        continue;
+                    }
+                    let c = u[[j, i]];
+                    let east = if i < nx { u[[j, i + 1]] } else { c };
+                    let (il, ir) = (i - 1, i.min(nx - 1));
+                    let vbar = 0.25 * (v[[j, il]] + v[[j, ir]] + v[[j + 1, il]] + v[[j + 1, ir]]);
+                    let (e, w) = coefficients(c, dx, nu);
+                    let (n, s) = coefficients(vbar, dx, nu);
+                    (ue[[j, i]], uw[[j, i]], un[[j, i]], us[[j, i]]) = (e, w, n, s);
+                    ru[[j, i]] = e * (east - c)
+                        + w * (u[[j, i - 1]] - c)
+                        + n * (mac.u_neighbour_y(&u, j, i, true) - c)
+                        + s * (mac.u_neighbour_y(&u, j, i, false) - c);
+                }
+            }
+            for j in 1..ny {
+                for i in 0..nx {
+                    if mac.v_face[[j, i]] == Face::Fixed {
+                        continue;
+                    }
+                    let c = v[[j, i]];
+                    let ubar =
+                        0.25 * (u[[j - 1, i]] + u[[j - 1, i + 1]] + u[[j, i]] + u[[j, i + 1]]);
+                    let (e, w) = coefficients(ubar, dx, nu);
+                    let (n, s) = coefficients(c, dx, nu);
+                    (ve[[j, i]], vw[[j, i]], vn[[j, i]], vs[[j, i]]) = (e, w, n, s);
+                    rv[[j, i]] = e * (mac.v_neighbour_x(&v, j, i, true) - c)
+                        + w * (mac.v_neighbour_x(&v, j, i, false) - c)
+                        + n * (v[[j + 1, i]] - c)
+                        + s * (v[[j - 1, i]] - c);
+                }
+            }
+            // Steady momentum residual with the current pressure and the body force.
+            ru += &fu;
+            rv += &fv;
+            mac.add_gradient(&mut ru, &mut rv, &pressure, -1.0);
+            let residual = ru
+                .iter()
+                .chain(rv.iter())
+                .fold(0.0_f64, |m, &r| m.max(r.abs()))
+                / scale;
+            if !residual.is_finite() {
+                return Err(Error::Solver(format!(
+                    "wind iteration diverged at step {step}"
+                )));
+            }
+            if residual < config.tolerance {
+                let pressure = mac
+                    .p_index
+                    .mapv(|k| pressure.get(k).copied().unwrap_or(f64::NAN));
+                return Ok(Self {
+                    wind: WindField {
+                        u,
+                        v,
+                        cell: dx,
+                        steps: step,
+                        residual,
+                    },
+                    pressure,
+                });
+            }
+            // Delta form: (I - dt Ax)(I - dt Ay) delta = dt R, then project; p += phi / dt.
+            ru *= dt;
+            rv *= dt;
+            sweep(&mut ru, &mac.u_face, &uw, &ue, dt, Axis(1));
+            sweep(&mut ru, &mac.u_face, &us, &un, dt, Axis(0));
+            sweep(&mut rv, &mac.v_face, &vw, &ve, dt, Axis(1));
+            sweep(&mut rv, &mac.v_face, &vs, &vn, dt, Axis(0));
+            u += &ru;
+            v += &rv;
+            let phi = mac.project(&mut u, &mut v);
+            for (p, f) in pressure.iter_mut().zip(&phi) {
+                *p += f / dt;
+            }
+        }
+        Err(Error::Solver(format!(
+            "wind did not reach a steady state in {} steps (raise the eddy viscosity)",
+            config.max_steps
+        )))
     }
 }
 
