@@ -23,7 +23,8 @@ const COARSE: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_
 const BLOCKED: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75},
     "obstacles":[{"x_min":6,"y_min":1,"x_max":7,"y_max":2}]}"#;
 
-fn tiny_dataset(dir: &Path) -> TrainingData {
+/// Three coarse arenas of four sources each.
+pub fn tiny_dataset(dir: &Path) -> TrainingData {
     let config = GenerateConfig {
         distribution: Distribution::Base {
             base: Layout::from_json(COARSE).unwrap().spec().clone(),
@@ -49,7 +50,8 @@ fn losses(history: &[EpochLoss]) -> Vec<EpochLoss> {
         .collect()
 }
 
-fn tiny_config(epochs: usize) -> TrainingConfig {
+/// A two-level network of a few filters, trained for `epochs`.
+pub fn tiny_config(epochs: usize) -> TrainingConfig {
     TrainingConfig {
         model: PlumeNetConfig::new()
             .with_filters(vec![4, 8])

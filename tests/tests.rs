@@ -7,6 +7,7 @@ mod compare;
 mod conv;
 mod credible;
 mod dataset;
+mod determinism;
 mod filament;
 mod frame;
 mod layout;
