@@ -3,11 +3,13 @@
 //! accepted is lost when the server dies; and the client side ([`RemoteSession`]) that a
 //! robot, simulated or real, steers by.
 //!
-//! **State file.** One line per accepted batch: the batch's readings as a JSON array, written,
-//! flushed and synced before the reply goes out; a reset empties the file (synced too). On
-//! start the file is read back into the session. A last line cut short by a crash (no line
-//! break, or not a whole batch) is dropped and the file truncated to the intact lines; damage
-//! anywhere else is an error.
+//! **State file.** A header line naming the session it belongs to (`{"plumenet_state": 1,
+//! "session": "..."}`: the layout, the plume model and the feature), then one line per accepted
+//! batch: the batch's readings as a JSON array, written, flushed and synced before the reply
+//! goes out; a reset keeps only the header (synced too). On start the file is read back into
+//! the session; a file of another session is refused. A last line cut short by a crash (no
+//! line break, or not a whole batch) is dropped and the file truncated to the intact lines;
+//! damage anywhere else is an error.
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, Write};
@@ -25,6 +27,19 @@ use crate::ste::session::Iteration;
 pub struct StateFile {
     file: File,
     path: PathBuf,
+    /// The header line, with its line break.
+    header: Vec<u8>,
+}
+
+/// Version of the state file's format, in its header.
+pub const STATE_VERSION: u32 = 1;
+
+/// The header line of a state file: which session its readings belong to.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StateHeader {
+    plumenet_state: u32,
+    session: String,
 }
 
 /// What [`StateFile::open`] found.
@@ -39,27 +54,71 @@ pub struct Restored {
 }
 
 impl StateFile {
-    /// Opens (or creates) the state file and reads back what it holds.
+    /// Opens (or creates) the state file of the session named `session` (its layout, plume
+    /// model and feature, as the server words them) and reads back what it holds.
     ///
     /// # Errors
-    /// [`Error::Io`] when it cannot be read or written, [`Error::Log`] when a line other than
-    /// the last is not a batch of readings.
-    pub fn open(path: &Path) -> Result<(Self, Restored)> {
+    /// [`Error::Io`] when it cannot be read or written, [`Error::Log`] when it belongs to another
+    /// session, or a line other than the last is not a batch of readings.
+    pub fn open(path: &Path, session: &str) -> Result<(Self, Restored)> {
         let io_err = |action, source| Error::Io {
             action,
             path: path.to_path_buf(),
             source,
+        };
+        let log_err = |reason: String| Error::Log {
+            path: path.to_path_buf(),
+            reason,
         };
         let text = match std::fs::read(path) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
             Err(e) => return Err(io_err("cannot read", e)),
         };
+        let mut header = serde_json::to_vec(&StateHeader {
+            plumenet_state: STATE_VERSION,
+            session: session.to_string(),
+        })
+        .map_err(|e| log_err(format!("cannot write the header: {e}")))?;
+        header.push(b'\n');
         let mut readings = Vec::new();
         let mut batches = 0;
+        let mut rest = text.as_slice();
         let mut intact = 0;
         let mut dropped_torn_line = false;
-        let mut rest = text.as_slice();
+        if !rest.is_empty() {
+            let first = rest.split(|&b| b == b'\n').next().unwrap_or_default();
+            match serde_json::from_slice::<StateHeader>(first) {
+                Ok(found) if found.plumenet_state != STATE_VERSION => {
+                    return Err(log_err(format!(
+                        "state format {} is not this server's {STATE_VERSION}",
+                        found.plumenet_state
+                    )));
+                }
+                Ok(found) if found.session != session => {
+                    return Err(log_err(format!(
+                        "holds the readings of another session ({}), not this server's ({session}): \
+                         remove it or choose another --state",
+                        found.session
+                    )));
+                }
+                Ok(_) if first.len() < rest.len() => {
+                    rest = &rest[first.len() + 1..];
+                    intact = first.len() + 1;
+                }
+                // A header cut short by a crash before its line break: start afresh.
+                _ if first.len() == rest.len() && !first.starts_with(b"[") => {
+                    rest = &[];
+                    dropped_torn_line = true;
+                }
+                _ => {
+                    return Err(log_err(
+                        "has no session header on its first line (not a plumenet state file)"
+                            .into(),
+                    ));
+                }
+            }
+        }
         while !rest.is_empty() {
             let (line, whole, next) = match rest.iter().position(|&b| b == b'\n') {
                 Some(k) => (&rest[..k], true, &rest[k + 1..]),
@@ -74,15 +133,15 @@ impl StateFile {
                 _ if next.is_empty() => dropped_torn_line = true,
                 other => {
                     let why = other.err().map_or(String::new(), |e| format!(": {e}"));
-                    return Err(Error::Log {
-                        path: path.to_path_buf(),
-                        reason: format!("state line {} is damaged{why}", batches + 1),
-                    });
+                    return Err(log_err(format!(
+                        "state line {} is damaged{why}",
+                        batches + 1
+                    )));
                 }
             }
             rest = next;
         }
-        let file = OpenOptions::new()
+        let mut file = OpenOptions::new()
             .create(true)
             .append(true)
             .open(path)
@@ -92,10 +151,16 @@ impl StateFile {
                 .and_then(|()| file.sync_all())
                 .map_err(|e| io_err("cannot truncate", e))?;
         }
+        if intact == 0 {
+            file.write_all(&header)
+                .and_then(|()| file.sync_all())
+                .map_err(|e| io_err("cannot write", e))?;
+        }
         Ok((
             Self {
                 file,
                 path: path.to_path_buf(),
+                header,
             },
             Restored {
                 readings,
@@ -131,6 +196,7 @@ impl Journal for StateFile {
     fn clear(&mut self) -> Result<()> {
         self.file
             .set_len(0)
+            .and_then(|()| self.file.write_all(&self.header))
             .and_then(|()| self.file.sync_all())
             .map_err(|e| self.io_err("cannot empty", e))
     }

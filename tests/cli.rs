@@ -1,11 +1,9 @@
 //! The binary: outputs of the main commands, and one clear error line for bad input.
 
-use std::process::Command;
-
 use ndarray::{Ix2, Ix3};
 use plumenet::io::read_npy;
 
-use crate::common::{assert_clean_failure, plumenet, plumenet_ok, read_json, repo_path};
+use crate::common::{assert_clean_failure, command, plumenet, plumenet_ok, read_json};
 
 const TUNNEL: &str = "data/layouts/wind-tunnel.json";
 
@@ -194,9 +192,8 @@ fn bad_input_gives_one_clear_error_line_and_no_file() {
 #[test]
 fn bench_cleans_up_when_the_reference_fails() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_plumenet"))
+    let out = command()
         .args(["bench", "--repeats", "1"])
-        .current_dir(repo_path(""))
         .env("TMPDIR", tmp.path())
         .env("PATH", tmp.path())
         .output()
@@ -910,10 +907,9 @@ fn serve_survives_sigkill_with_its_state_file() {
     let tmp = tempfile::tempdir().unwrap();
     let state = tmp.path().join("state.jsonl");
     let start = || {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_plumenet"))
+        let mut child = command()
             .args(["serve", "--solver", "--listen", "127.0.0.1:0", "--state"])
             .arg(&state)
-            .current_dir(repo_path(""))
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::null())
             .spawn()
@@ -1149,4 +1145,340 @@ fn bad_likelihood_settings_fail_before_the_bank() {
     ]);
     assert_clean_failure(&out, factor);
     assert!(!std::path::Path::new(cache).exists());
+}
+
+/// A small empty room (6 m x 3 m, 0.25 m cells: 288 cells and candidates) for end-to-end runs.
+const SMALL_ROOM: &str = r#"{"width_m":6,"height_m":3,"cell_m":0.25,"wind":{"speed_mps":0.5}}"#;
+
+/// `SMALL_ROOM` written into `dir`, and its path.
+fn small_room(dir: &std::path::Path) -> String {
+    let path = dir.join("room.json");
+    std::fs::write(&path, SMALL_ROOM).unwrap();
+    path.to_str().unwrap().to_string()
+}
+
+/// generate (whole and in shards), merge, train (and continue), eval and predict, each run to
+/// success on a tiny dataset.
+#[test]
+fn the_dataset_and_model_commands_run_end_to_end() {
+    let tmp = tempfile::tempdir().unwrap();
+    let room = small_room(tmp.path());
+    let dir = |name: &str| tmp.path().join(name).to_str().unwrap().to_string();
+    let generate = |out: &str, shard: Option<&str>| {
+        let mut args = vec![
+            "generate",
+            "--base",
+            &room,
+            "--layouts",
+            "2",
+            "--sources",
+            "3",
+            "--seed",
+            "5",
+            "--out",
+            out,
+        ];
+        args.extend(shard.iter().flat_map(|s| ["--shard", *s]));
+        plumenet_ok(&args);
+    };
+    generate(&dir("whole"), None);
+    generate(&dir("shard0"), Some("0/2"));
+    generate(&dir("shard1"), Some("1/2"));
+    plumenet_ok(&[
+        "merge",
+        "--out",
+        &dir("merged"),
+        &dir("shard0"),
+        &dir("shard1"),
+    ]);
+    // The merged shards are the whole dataset, byte for byte, manifest included.
+    let files = |d: &str| {
+        let mut names: Vec<_> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        names
+    };
+    assert_eq!(files(&dir("merged")), files(&dir("whole")));
+    for name in files(&dir("whole")) {
+        assert!(
+            std::fs::read(tmp.path().join("merged").join(&name)).unwrap()
+                == std::fs::read(tmp.path().join("whole").join(&name)).unwrap(),
+            "{name:?} differs"
+        );
+    }
+
+    let train = |epochs: &str| {
+        plumenet_ok(&[
+            "train",
+            "--data",
+            &dir("merged"),
+            "--out",
+            &dir("model"),
+            "--epochs",
+            epochs,
+            "--filters",
+            "4,8",
+            "--batch-size",
+            "2",
+        ])
+    };
+    let first = String::from_utf8_lossy(&train("2").stdout).to_string();
+    assert!(
+        first.contains("epoch   2") && !first.contains("epoch   3"),
+        "{first}"
+    );
+    // A finished training continued with more epochs resumes from its checkpoint.
+    let more = String::from_utf8_lossy(&train("3").stdout).to_string();
+    assert!(
+        more.contains("resuming at epoch 3") && more.contains("epoch   3"),
+        "{more}"
+    );
+    assert!(!more.contains("epoch   1 "), "{more}");
+
+    let scores = tmp.path().join("eval.json");
+    plumenet_ok(&[
+        "eval",
+        "--model",
+        &dir("model"),
+        "--data",
+        &dir("whole"),
+        "--json",
+        scores.to_str().unwrap(),
+    ]);
+    let scores = read_json(&scores);
+    assert_eq!(scores["summary"]["maps"], 6);
+    assert_eq!(scores["maps"].as_array().unwrap().len(), 6);
+    let l2 = scores["summary"]["median_relative_l2"].as_f64().unwrap();
+    assert!(l2.is_finite() && l2 >= 0.0, "{l2}");
+
+    let field = tmp.path().join("field.npy");
+    plumenet_ok(&[
+        "predict",
+        "--model",
+        &dir("model"),
+        "--layout",
+        &room,
+        "--source",
+        "1.5,1.5",
+        "--out",
+        field.to_str().unwrap(),
+    ]);
+    let f = read_npy::<f32, Ix2>(&field).unwrap();
+    assert_eq!(f.dim(), (12, 24));
+    assert!(f.iter().all(|v| v.is_finite() && *v >= 0.0));
+}
+
+/// bench (without its Python reference) and bench-ste run to success on a small room and write
+/// their figures.
+#[test]
+fn the_benchmarks_run_on_a_small_room() {
+    let tmp = tempfile::tempdir().unwrap();
+    let room = small_room(tmp.path());
+    let json = tmp.path().join("bench.json");
+    plumenet_ok(&[
+        "bench",
+        "--layout",
+        &room,
+        "--repeats",
+        "1",
+        "--no-reference",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let bench = read_json(&json);
+    assert_eq!(bench["candidates"], 288);
+    assert_eq!(bench["unknowns"], 288);
+    assert!(bench["total_ms"].as_f64().unwrap() > 0.0);
+
+    let json = tmp.path().join("bench-ste.json");
+    plumenet_ok(&[
+        "bench-ste",
+        "--layout",
+        &room,
+        "--samples",
+        "200",
+        "--batch",
+        "20",
+        "--repeats",
+        "1",
+        "--source",
+        "1.5,1.5",
+        "--start",
+        "5,1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let ste = read_json(&json);
+    let updates = ste["updates"].as_array().unwrap();
+    assert!(updates.len() >= 2, "{ste}");
+    assert!(
+        updates
+            .iter()
+            .all(|u| u["candidates"] == 288 && u["update_ms"].as_f64().unwrap() > 0.0)
+    );
+    assert!(ste["run_iterations"].as_u64().unwrap() >= 1);
+    // The arena's default start does not fit this room: one clear line, before any timing.
+    let out = plumenet(&["bench-ste", "--layout", &room]);
+    assert_clean_failure(
+        &out,
+        "invalid source position (15, 1): the robot cannot start here",
+    );
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+}
+
+/// serve on its standard input answers every line, the bad ones with an error, and robot-sim
+/// drives a served session to its end.
+#[test]
+fn serve_on_stdin_and_robot_sim_against_a_server_run_to_the_end() {
+    use std::io::{BufRead, BufReader, Write};
+    let tmp = tempfile::tempdir().unwrap();
+    let room = small_room(tmp.path());
+    let mut child = command()
+        .args(["serve", "--solver", "--layout", &room])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let lines = [
+        r#"{"id":1,"op":"readings","readings":[{"t":0.0,"x":5.0,"y":1.5,"value":1.0},{"t":0.1,"x":4.9,"y":1.5,"value":1.2}]}"#,
+        r#"{"id":2,"op":"iterate","position":[4.9,1.5]}"#,
+        "[1,2]",
+        r#"{"id":3,"op":"belief"}"#,
+    ];
+    {
+        let mut stdin = child.stdin.take().unwrap();
+        for line in lines {
+            writeln!(stdin, "{line}").unwrap();
+        }
+    }
+    let replies: Vec<serde_json::Value> = BufReader::new(child.stdout.take().unwrap())
+        .lines()
+        .map(|l| serde_json::from_str(&l.unwrap()).unwrap())
+        .collect();
+    assert!(
+        child.wait().unwrap().success(),
+        "serve ends when its input does"
+    );
+    assert_eq!(replies.len(), lines.len());
+    assert_eq!(replies[0]["accepted"], 2);
+    assert!(replies[1]["path"].is_array(), "{}", replies[1]);
+    assert_eq!(replies[2]["ok"], false);
+    assert_eq!(replies[3]["posterior"].as_array().unwrap().len(), 288);
+
+    let mut server = command()
+        .args([
+            "serve",
+            "--solver",
+            "--layout",
+            &room,
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(server.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let at = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap()
+        .to_string();
+    let json = tmp.path().join("robot.json");
+    let out = plumenet(&[
+        "robot-sim",
+        "--connect",
+        &at,
+        "--layout",
+        &room,
+        "--source",
+        "1.5,1.5",
+        "--start",
+        "5,1",
+        "--max-iterations",
+        "5",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    server.kill().unwrap();
+    server.wait().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Five legs, the budget given, each ending in an iterate reply; the readings all counted.
+    let run = read_json(&json);
+    assert_eq!(run["legs"], 5, "{run}");
+    assert_eq!(run["last"]["iteration"], 5, "{run}");
+    assert_eq!(run["last"]["readings"], run["readings"], "{run}");
+    assert!(run["error_m"].as_f64().unwrap().is_finite());
+}
+
+/// A state file written by a session of another room or another feature (or plume model: the
+/// session's name holds all three) is refused with one line before anything is served, and left
+/// untouched.
+#[test]
+fn serve_refuses_a_state_file_of_another_session() {
+    let tmp = tempfile::tempdir().unwrap();
+    let room = small_room(tmp.path());
+    let state = tmp.path().join("state.jsonl");
+    let state = state.to_str().unwrap();
+    let serve = |args: &[&str]| {
+        let mut child = command()
+            .args(["serve", "--state", state])
+            .args(args)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        {
+            use std::io::Write;
+            // A server that refuses its state file exits without reading: ignore a broken pipe.
+            let mut stdin = child.stdin.take().unwrap();
+            let _ = writeln!(
+                stdin,
+                r#"{{"id":1,"op":"readings","readings":[{{"t":0.0,"x":5.0,"y":1.5,"value":1.0}}]}}"#
+            );
+        }
+        child.wait_with_output().unwrap()
+    };
+    let first = serve(&["--solver", "--layout", &room]);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let written = std::fs::read(state).unwrap();
+    // The same session again: restored.
+    let again = serve(&["--solver", "--layout", &room]);
+    assert!(String::from_utf8_lossy(&again.stderr).contains("1 readings in 1 batches restored"));
+    let written = std::fs::read(state).unwrap().len().max(written.len());
+    for other in [
+        vec!["--solver"],
+        vec!["--solver", "--layout", &room, "--feature", "value"],
+    ] {
+        let out = serve(&other);
+        assert_clean_failure(&out, "holds the readings of another session (layout room");
+        assert_eq!(
+            String::from_utf8_lossy(&out.stderr)
+                .lines()
+                .filter(|l| l.starts_with("error"))
+                .count(),
+            1
+        );
+        assert!(out.stdout.is_empty());
+        assert_eq!(std::fs::read(state).unwrap().len(), written);
+    }
 }

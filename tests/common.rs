@@ -29,13 +29,20 @@ pub fn repo_path(rel: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
 
-/// Runs the binary in the repository root.
+/// The binary, to run in the repository root with its bank cache in Cargo's scratch folder
+/// for integration tests (never the checkout's `data/cache`).
+pub fn command() -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_plumenet"));
+    command.current_dir(repo_path("")).env(
+        "PLUMENET_CACHE_DIR",
+        std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("bank-cache"),
+    );
+    command
+}
+
+/// Runs the binary (see [`command`]).
 pub fn plumenet(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_plumenet"))
-        .args(args)
-        .current_dir(repo_path(""))
-        .output()
-        .expect("binary runs")
+    command().args(args).output().expect("binary runs")
 }
 
 /// Runs the binary and asserts that it succeeded.
@@ -63,4 +70,19 @@ pub fn assert_clean_failure(out: &Output, needle: &str) {
 /// The JSON document in a file a command wrote.
 pub fn read_json(path: impl AsRef<std::path::Path>) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// Asserts that `result` is an error whose message holds `needle`.
+#[track_caller]
+pub fn assert_err<T, E: std::fmt::Display>(result: Result<T, E>, needle: &str) {
+    match result {
+        Ok(_) => panic!("expected an error with {needle:?}, got a value"),
+        Err(e) => {
+            let message = e.to_string();
+            assert!(
+                message.contains(needle),
+                "expected {needle:?} in: {message}"
+            );
+        }
+    }
 }

@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use crate::common::assert_err;
 use ndarray::{Array1, Ix1};
 use plumenet::dataset::{
     self, Distribution, GenerateConfig, GenerateParams, Manifest, RoomParams, Shard,
@@ -217,7 +218,10 @@ fn same_seed_same_bytes_and_shards_merge_to_the_same_dataset() {
     assert_eq!(bytes(&a), bytes(&merged));
 
     // A missing shard, or a shard of another dataset, is refused.
-    assert!(dataset::merge(&[shards[0].as_path()], &tmp.path().join("m2")).is_err());
+    assert_err(
+        dataset::merge(&[shards[0].as_path()], &tmp.path().join("m2")),
+        "shards cover 1 of 3 layouts; some shards are missing",
+    );
     let other = tmp.path().join("other");
     let mut cfg = config(Some(Shard { index: 1, count: 2 }));
     cfg.seed = 12;
@@ -281,8 +285,8 @@ fn damaged_datasets_are_clear_errors() {
     let err = Manifest::load(tmp.path()).unwrap_err().to_string();
     assert!(err.contains("generate the dataset again"), "{err}");
     std::fs::write(tmp.path().join("manifest.json"), "{ not json").unwrap();
-    assert!(Manifest::load(tmp.path()).is_err());
-    assert!(Manifest::load(&tmp.path().join("missing")).is_err());
+    assert_err(Manifest::load(tmp.path()), "malformed JSON in");
+    assert_err(Manifest::load(&tmp.path().join("missing")), "cannot read");
 }
 
 #[test]
@@ -323,11 +327,17 @@ fn bad_generator_settings_are_rejected() {
     let tmp = tempfile::tempdir().unwrap();
     let mut c = config(None);
     c.layouts = 0;
-    assert!(dataset::generate(&c, tmp.path(), &|| ()).is_err());
+    assert_err(
+        dataset::generate(&c, tmp.path(), &|| ()),
+        "--layouts and --sources must be at least 1",
+    );
     let mut c = config(Some(Shard { index: 0, count: 5 }));
     c.layouts = 3;
-    assert!(dataset::generate(&c, tmp.path(), &|| ()).is_err());
+    assert_err(
+        dataset::generate(&c, tmp.path(), &|| ()),
+        "5 shards for 3 layouts would leave empty shards",
+    );
     for s in ["2/2", "a/b", "1", "0/0"] {
-        assert!(s.parse::<Shard>().is_err(), "{s}");
+        assert_err(s.parse::<Shard>(), "shard must be K/N with 0 <= K < N");
     }
 }

@@ -5,7 +5,7 @@ use plumenet::physics::filament::{FilamentConfig, FilamentPlume};
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 
-use crate::common::{empty_tunnel, wind_tunnel};
+use crate::common::{assert_err, empty_tunnel, wind_tunnel};
 
 const SOURCE: (f64, f64) = (3.0, 2.0);
 const PROBES: [(f64, f64); 6] = [
@@ -146,12 +146,18 @@ fn no_gas_inside_obstacles_and_bad_sources_rejected() {
     plume.advance(30.0);
     assert!(!plume.is_empty());
     assert_eq!(plume.concentration_at(7.0, 1.2), 0.0);
-    assert!(FilamentPlume::new(&l, &w, (7.0, 1.2), FilamentConfig::default(), 1).is_err());
+    assert_err(
+        FilamentPlume::new(&l, &w, (7.0, 1.2), FilamentConfig::default(), 1),
+        "invalid source position (7, 1.2): inside obstacle 0",
+    );
     let bad = FilamentConfig {
         walk_fraction: 1.5,
         ..FilamentConfig::default()
     };
-    assert!(FilamentPlume::new(&l, &w, SOURCE, bad, 1).is_err());
+    assert_err(
+        FilamentPlume::new(&l, &w, SOURCE, bad, 1),
+        "bad filament settings",
+    );
 }
 
 /// A wall two cells (0.25 m) thick with its lee upwind of nothing: wind from the west over a

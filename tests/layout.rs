@@ -3,7 +3,7 @@
 use plumenet::Error;
 use plumenet::layout::{DEFAULT_DIFFUSIVITY_M2PS, Layout};
 
-use crate::common::{repo_path, wind_tunnel};
+use crate::common::{assert_err, repo_path, wind_tunnel};
 
 fn layout_err(json: &str) -> String {
     match Layout::from_json(json) {
@@ -152,5 +152,8 @@ fn candidates_cover_free_space_on_the_quarter_metre_grid() {
     // 72 x 16 points minus those inside the two 1.0 x 1.2 m obstacles (4 x 5 each).
     assert_eq!(c.len(), 72 * 16 - 2 * 4 * 5);
     assert!(c.iter().all(|&[x, y]| l.is_free(x, y)));
-    assert!(l.candidates(0.2).is_err());
+    assert_err(
+        l.candidates(0.2),
+        "candidate spacing 0.2 m must be a positive multiple of the cell size 0.125 m",
+    );
 }

@@ -11,7 +11,7 @@ use plumenet::ste::posterior::Sample;
 use plumenet::ste::robot::Occupancy;
 use plumenet::ste::{Baselines, Feature, SensorPreset, SteParams};
 
-use crate::common::{empty_tunnel, wind_tunnel};
+use crate::common::{assert_err, empty_tunnel, wind_tunnel};
 
 const SOURCE: (f64, f64) = (3.0, 2.0);
 
@@ -205,7 +205,10 @@ fn baselines_are_the_highest_reading_and_the_centre() {
     assert!((b.centre.error_m.unwrap() - 4.0f64.hypot(1.0)).abs() < 1e-12);
     let unknown = Baselines::new(&l, &samples, None).unwrap();
     assert!(unknown.highest_reading.error_m.is_none());
-    assert!(Baselines::new(&l, &[], None).is_err());
+    assert_err(
+        Baselines::new(&l, &[], None),
+        "no readings: no highest reading",
+    );
 }
 
 #[test]
@@ -269,7 +272,10 @@ fn a_survey_reads_every_tick_along_its_path() {
         v.iter().sum::<f64>() / v.len() as f64
     };
     assert!(mean(&|s| s.x > 5.0 && s.x < 9.0) > mean(&|s| s.x < 3.5));
-    assert!(fly(&reality, &survey.path, [7.0, 1.2], &flight, 2).is_err());
+    assert_err(
+        fly(&reality, &survey.path, [7.0, 1.2], &flight, 2),
+        "invalid source position (7, 1.2): inside obstacle 0",
+    );
 }
 
 /// A survey study runs the same sources as the planner's (paired), its rows are the survey
@@ -402,11 +408,13 @@ fn the_bank_marginal_is_the_mixture_of_single_bank_posteriors() {
     // Banks over other candidates, or none at all, are refused.
     let support =
         prior_support(&world.room.layout, world.room.sampler.candidates(), r, 0.25).unwrap();
-    assert!(Estimator::with_banks(vec![], &support, config.ste).is_err());
-    assert!(
-        world
-            .with_wind_scales(&PhysicsSolver, &[0.0, 1.0], None)
-            .is_err()
+    assert_err(
+        Estimator::with_banks(vec![], &support, config.ste),
+        "no plume bank",
+    );
+    assert_err(
+        world.with_wind_scales(&PhysicsSolver, &[0.0, 1.0], None),
+        "model wind scales must be positive numbers, got [0.0, 1.0]",
     );
 }
 
@@ -552,7 +560,10 @@ fn the_background_posterior_tells_a_rising_background_from_none() {
     let w: Vec<f64> = est.backgrounds().iter().map(|b| b[1]).collect();
     assert!(w[0] < 0.2, "a rising background in reality: {w:?}");
     ste.background_time_s = 0.0;
-    assert!(replay(world.room.samplers(), ste, r, &samples).is_err());
+    assert_err(
+        replay(world.room.samplers(), ste, r, &samples),
+        "the background time constant must be a positive number of seconds, got 0",
+    );
 }
 
 /// Clean-air model ties: on a lawnmower survey (0.5 m lanes, from the outlet upwind) of a
@@ -652,7 +663,10 @@ fn the_spread_bank_is_nearer_the_meandering_plumes_average() {
     let bank = PhysicsSolver.bank(&l, &[source]).unwrap();
     assert_eq!(bank.spread_over_directions(&l, 0.0).unwrap(), bank);
     for bad in [-1.0, 91.0, f64::NAN] {
-        assert!(bank.spread_over_directions(&l, bad).is_err(), "{bad}");
+        assert_err(
+            bank.spread_over_directions(&l, bad),
+            "a wind-direction spread must be between 0 and 90 degrees",
+        );
     }
     let spread = bank.spread_over_directions(&l, 30.0).unwrap();
     let w = WindField::solve(&l).unwrap();
@@ -715,8 +729,14 @@ fn the_spread_posterior_tells_a_wandering_wind_from_a_steady_one() {
     use plumenet::ste::replay::replay;
     let world = crate::ste::world().with_wind_spreads(&[0.0, 30.0]).unwrap();
     assert_eq!(world.room.banks.len(), 2);
-    assert!(crate::ste::world().with_wind_spreads(&[]).is_err());
-    assert!(crate::ste::world().with_wind_spreads(&[0.0, 95.0]).is_err());
+    assert_err(
+        crate::ste::world().with_wind_spreads(&[]),
+        "give at least one wind-direction spread",
+    );
+    assert_err(
+        crate::ste::world().with_wind_spreads(&[0.0, 95.0]),
+        "a wind-direction spread must be between 0 and 90 degrees, got 95",
+    );
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     let survey = lawnmower(&world.room.layout, &config.robot, 1.0).unwrap();
     let wandering = world
@@ -858,7 +878,10 @@ fn a_turned_bank_is_the_plume_under_a_turned_wind() {
     let bank = PhysicsSolver.bank(&l, &[source]).unwrap();
     assert_eq!(bank.turned(&l, 0.0).unwrap(), bank);
     for bad in [-91.0, 91.0, f64::NAN] {
-        assert!(bank.turned(&l, bad).is_err(), "{bad}");
+        assert_err(
+            bank.turned(&l, bad),
+            "a wind turn must be within 90 degrees either way",
+        );
     }
     let (_, i) = l.cell_of(source[0] + 2.0, 0.0);
     let peak_y = |b: &plumenet::plume::PlumeBank| {

@@ -5,7 +5,7 @@ use plumenet::ros::{
     Pairer, UNKNOWN_VARIANCE, belief_grid, estimate_point, estimate_with_covariance, goal_pose,
 };
 
-use crate::common::wind_tunnel;
+use crate::common::{assert_err, wind_tunnel};
 
 #[test]
 fn times_and_headings_round_trip() {
@@ -117,7 +117,10 @@ fn odometry_covariances_are_fixed_arrays_of_36() {
     let back: Odometry = serde_json::from_str(&text).unwrap();
     assert_eq!(back, odom);
     let short = text.replace(",35.0]", "]");
-    assert!(serde_json::from_str::<Odometry>(&short).is_err());
+    assert_err(
+        serde_json::from_str::<Odometry>(&short),
+        "invalid length 35, expected 36 numbers",
+    );
 }
 
 /// Over DDS on this machine: a second node publishes readings and poses, the STE node answers

@@ -145,8 +145,13 @@ fn the_state_file_survives_a_crash_and_drops_a_torn_line() {
     let data = readings();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("state.jsonl");
-    let (mut file, restored) = StateFile::open(&path).unwrap();
+    let (mut file, restored) = StateFile::open(&path, OWNER).unwrap();
     assert!(restored.readings.is_empty());
+    let header = std::fs::read(&path).unwrap();
+    assert_eq!(
+        header,
+        format!("{{\"plumenet_state\":1,\"session\":\"{OWNER}\"}}\n").into_bytes()
+    );
     let mut p = protocol();
     let batches: Vec<&[Sample]> = data.chunks(97).collect();
     for (k, batch) in batches.iter().enumerate() {
@@ -164,7 +169,7 @@ fn the_state_file_survives_a_crash_and_drops_a_torn_line() {
     let mut torn = intact.clone();
     torn.extend_from_slice(br#"[{"t":1e6,"x":1.0,"y":"#);
     std::fs::write(&path, &torn).unwrap();
-    let (_, restored) = StateFile::open(&path).unwrap();
+    let (_, restored) = StateFile::open(&path, OWNER).unwrap();
     assert!(restored.dropped_torn_line);
     assert_eq!(restored.batches, batches.len());
     assert_eq!(restored.readings, data);
@@ -177,14 +182,42 @@ fn the_state_file_survives_a_crash_and_drops_a_torn_line() {
     session.add_readings(&restored.readings).unwrap();
     session.update().unwrap();
     assert_eq!(session.estimator().posterior(), &before[..]);
-    // A reset empties it; damage before the last line is an error.
-    let (mut file, _) = StateFile::open(&path).unwrap();
+    // Another session's file is refused, whole, with one line naming both sessions.
+    let err = StateFile::open(&path, "layout other, model solver, feature rank")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains(&format!("holds the readings of another session ({OWNER})"))
+            && err.contains("not this server's (layout other, model solver, feature rank)"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        intact,
+        "a refused file is left as it was"
+    );
+    // A reset keeps only the header; damage before the last line is an error, and a file
+    // without a header (not a state file) is refused.
+    let (mut file, _) = StateFile::open(&path, OWNER).unwrap();
     p.handle(&request(100, "reset", json!({})), &mut file);
-    assert_eq!(std::fs::metadata(&path).unwrap().len(), 0);
-    std::fs::write(&path, "[oops]\n[]\n").unwrap();
-    let err = StateFile::open(&path).unwrap_err().to_string();
+    assert_eq!(std::fs::read(&path).unwrap(), header);
+    let mut damaged = header.clone();
+    damaged.extend_from_slice(b"[oops]\n[]\n");
+    std::fs::write(&path, &damaged).unwrap();
+    let err = StateFile::open(&path, OWNER).unwrap_err().to_string();
     assert!(err.contains("state line 1 is damaged"), "{err}");
+    std::fs::write(&path, "[]\n[]\n").unwrap();
+    let err = StateFile::open(&path, OWNER).unwrap_err().to_string();
+    assert!(err.contains("has no session header"), "{err}");
+    // A header torn by a crash before its line break: the file starts afresh.
+    std::fs::write(&path, &header[..20]).unwrap();
+    let (_, restored) = StateFile::open(&path, OWNER).unwrap();
+    assert!(restored.dropped_torn_line && restored.readings.is_empty());
+    assert_eq!(std::fs::read(&path).unwrap(), header);
 }
+
+/// A session's name in a state file, as `serve` words it.
+const OWNER: &str = "layout wind-tunnel 0123456789abcdef, model solver solver-0.1.0, feature rank";
 
 #[test]
 fn tcp_clients_come_and_go_and_the_session_goes_on() {
@@ -273,4 +306,76 @@ fn a_robot_steered_over_tcp_matches_localize() {
     // A refused request comes back as an error naming the server's reason.
     let err = remote.call("fly", json!({})).unwrap_err().to_string();
     assert!(err.contains("the server refused fly"), "{err}");
+}
+
+/// Every kind of hostile line gets one error reply naming the problem, changes nothing, and the
+/// server goes on serving.
+#[test]
+fn hostile_lines_are_refused_one_by_one_and_the_session_goes_on() {
+    let data = readings();
+    let mut p = protocol();
+    let reading = |value: &str| format!(r#"{{"t":1.0,"x":15.0,"y":1.0,"value":{value}}}"#);
+    let after = data[199].t + 1.0;
+    let huge: Vec<Value> = (0..200_000)
+        .map(|k| json!({"t": after + k as f64 * 0.01, "x": 15.0, "y": 1.0, "value": 1.0}))
+        .collect();
+    let lines = vec![
+        request(1, "readings", json!({"readings": &data[..200]})),
+        "[1,2]".to_string(),
+        "42".to_string(),
+        r#""hello""#.to_string(),
+        "null".to_string(),
+        r#"{"id":2}"#.to_string(),
+        r#"{"id":3,"op":7}"#.to_string(),
+        r#"{"id":4,"op":"readings","readings":{"t":1}}"#.to_string(),
+        format!(
+            r#"{{"id":5,"op":"readings","readings":[{}]}}"#,
+            reading(r#""high""#)
+        ),
+        format!(
+            r#"{{"id":6,"op":"readings","readings":[{}]}}"#,
+            reading("1e999")
+        ),
+        format!(
+            r#"{{"id":7,"op":"readings","readings":[{}]}}"#,
+            reading("null")
+        ),
+        r#"{"id":8,"op":"iterate","position":[1.0]}"#.to_string(),
+        r#"{"id":9,"op":"iterate","position":[1e999,1.0]}"#.to_string(),
+        r#"{"id":10,"op":"hello","extra":true}"#.to_string(),
+        "{\"id\":11,\"op\":\"readings\",\"readings\":[".to_string(),
+        request(12, "readings", json!({"readings": []})),
+        request(13, "readings", json!({"readings": huge})),
+        request(14, "hello", json!({})),
+        request(15, "belief", json!({})),
+    ];
+    let r = replies(&mut p, &lines);
+    assert_eq!(r[0]["accepted"], 200);
+    let refusals = [
+        (1, "a request is a JSON object", Value::Null),
+        (2, "got a number", Value::Null),
+        (3, "got a string", Value::Null),
+        (4, "got null", Value::Null),
+        (5, "missing field `op`", json!(2)),
+        (6, "bad request", json!(3)),
+        (7, "invalid type: map, expected a sequence", json!(4)),
+        (8, "invalid type: string \"high\", expected f64", json!(5)),
+        (9, "malformed request", Value::Null),
+        (10, "invalid type: null, expected f64", json!(7)),
+        (11, "invalid length 1", json!(8)),
+        (12, "malformed request", Value::Null),
+        (13, "unknown field `extra`", json!(10)),
+        (14, "malformed request", Value::Null),
+    ];
+    for (k, needle, id) in refusals {
+        assert_eq!(r[k]["ok"], false, "line {k}: {}", r[k]);
+        let error = r[k]["error"].as_str().unwrap();
+        assert!(error.contains(needle), "line {k}: {error}");
+        assert_eq!(r[k]["id"], id, "line {k}");
+    }
+    // An empty batch is accepted and adds nothing; a huge one is taken whole.
+    assert_eq!(r[15]["accepted"], 200);
+    assert_eq!(r[16]["accepted"], 200 + 200_000, "{}", r[16]);
+    assert_eq!(r[17]["ok"], true);
+    assert_eq!(r[18]["ok"], true);
 }

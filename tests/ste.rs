@@ -20,7 +20,7 @@ use plumenet::ste::{
     Sampling, SensorPreset, SteParams, Termination,
 };
 
-use crate::common::wind_tunnel;
+use crate::common::{assert_err, wind_tunnel};
 
 /// The paper arena with the physics solver's bank, built once for all tests.
 pub fn world() -> &'static World {
@@ -1009,7 +1009,7 @@ fn replay_of_a_synthetic_log_recovers_its_source() {
         assert!(bytes(thinned.len()) * 3 < bytes(samples.len()));
     }
     assert_eq!(thin(&[], 5).unwrap(), vec![]);
-    assert!(thin(&[], 0).is_err());
+    assert_err(thin(&[], 0), "cannot thin a log to no readings");
 }
 
 #[test]
@@ -1074,8 +1074,13 @@ fn termination_needs_a_stable_concentrated_belief() {
     };
     assert!(by_area(area + 1e-6).concentrated(&est));
     assert!(!by_area(area - 1e-6).concentrated(&est));
-    assert!(by_area(0.0).check(72.0).is_err() && by_area(73.0).check(72.0).is_err());
-    assert!(by_area(f64::NAN).check(72.0).is_err() && by_area(72.0).check(72.0).is_ok());
+    assert_err(
+        by_area(0.0).check(72.0),
+        "the target area must be a positive number of square metres no larger than the room's 72.0, got 0",
+    );
+    assert_err(by_area(73.0).check(72.0), "got 73");
+    assert_err(by_area(f64::NAN).check(72.0), "got NaN");
+    assert!(by_area(72.0).check(72.0).is_ok());
     let tight = Termination {
         entropy_nats: 0.5,
         ..loose

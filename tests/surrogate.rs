@@ -15,7 +15,7 @@ use plumenet::surrogate::{
     PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train,
 };
 
-use crate::common::wind_tunnel;
+use crate::common::{assert_err, wind_tunnel};
 
 const COARSE: &str = r#"{"width_m":18,"height_m":4,"cell_m":0.25,"wind":{"speed_mps":0.75}}"#;
 
@@ -274,7 +274,7 @@ fn saved_models_load_bit_identically_and_bad_files_are_errors() {
     std::fs::write(dir.join("weights.bpk"), &weights[..weights.len() / 2]).unwrap();
     let err = Surrogate::load(&dir).unwrap_err().to_string();
     assert!(err.contains("truncated or replaced"), "{err}");
-    assert!(Surrogate::load(&tmp.path().join("nope")).is_err());
+    assert_err(Surrogate::load(&tmp.path().join("nope")), "cannot read");
     let junk = tmp.path().join("junk.bpk");
     std::fs::write(&junk, b"not a burnpack file").unwrap();
     let net = tiny_config(1)

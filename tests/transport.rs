@@ -6,7 +6,7 @@ use plumenet::physics::scheme::Scheme;
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
 
-use crate::common::{empty_tunnel, wind_tunnel};
+use crate::common::{assert_err, empty_tunnel, wind_tunnel};
 
 #[test]
 fn point_source_matches_the_bessel_solution_with_images_within_3_percent() {
@@ -87,6 +87,12 @@ fn bank_equals_individual_solves_and_rejects_bad_sources() {
             .fold(0.0_f32, f32::max);
         assert!(diff < 1e-6, "candidate {k}: difference {diff}");
     }
-    assert!(t.bank(&[[3.0, 2.0], [7.0, 1.2]]).is_err());
-    assert!(t.solve(f64::NAN, 1.0).is_err());
+    assert_err(
+        t.bank(&[[3.0, 2.0], [7.0, 1.2]]),
+        "invalid source position (7, 1.2): inside obstacle 0",
+    );
+    assert_err(
+        t.solve(f64::NAN, 1.0),
+        "invalid source position (NaN, 1): coordinates must be finite numbers",
+    );
 }

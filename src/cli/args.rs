@@ -41,6 +41,7 @@ pub struct PlumeArgs {
         long,
         hide_short_help = true,
         help_heading = "Plume model and bank",
+        env = "PLUMENET_CACHE_DIR",
         default_value = "data/cache"
     )]
     cache_dir: PathBuf,
@@ -79,7 +80,7 @@ impl PlumeArgs {
     }
 
     /// The layout's banks for the chosen model and the estimator's settings for `feature`,
-    /// checked before the banks are computed; also returns the model's name for reports.
+    /// checked before the banks are computed; also returns the model (its name for reports).
     /// The note on the bank goes to standard output, or to standard error when `quiet`
     /// (standard output being a protocol's).
     pub(super) fn room(
@@ -88,7 +89,7 @@ impl PlumeArgs {
         features: &FeatureArgs,
         feature: Feature,
         quiet: bool,
-    ) -> Result<(RoomBanks, ValidSteParams, String)> {
+    ) -> Result<(RoomBanks, ValidSteParams, Box<dyn PlumeModel>)> {
         let model = self.model()?;
         let params = features.params(feature, model.rank_factor())?;
         let (room, note) = self.room_of(layout, model.as_ref())?;
@@ -97,7 +98,7 @@ impl PlumeArgs {
         } else {
             println!("{note}");
         }
-        Ok((room, params, model.name()))
+        Ok((room, params, model))
     }
 
     /// The banks of `model` over the layout's candidates (through the cache, with the wind

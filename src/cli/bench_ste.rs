@@ -14,6 +14,7 @@ use plumenet::ste::params::RankParams;
 use plumenet::ste::{Feature, RoomBanks, SensorPreset, SteParams};
 
 use super::live::SessionArgs;
+use super::parse_point;
 
 #[derive(Debug, Args)]
 pub struct BenchSteArgs {
@@ -45,6 +46,12 @@ pub struct BenchSteArgs {
     /// turned banks) against rank over one bank, side by side (0: not timed).
     #[arg(long, default_value_t = 0.0)]
     wind_wander: f64,
+    /// Source of the timed whole run "X,Y" (m); the default suits the paper's arena.
+    #[arg(long, value_parser = parse_point, default_value = "5.1,2.1")]
+    source: (f64, f64),
+    /// Robot start of the timed whole run "X,Y" (m); the default suits the paper's arena.
+    #[arg(long, value_parser = parse_point, default_value = "15,1")]
+    start: (f64, f64),
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -52,6 +59,10 @@ pub struct BenchSteArgs {
 
 pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
     let layout = Layout::load(&a.layout)?;
+    // The timed run's positions are checked before anything is timed.
+    layout.check_source(a.source.0, a.source.1)?;
+    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    plumenet::sim::episode::check_start(&layout, &config.robot, [a.start.0, a.start.1])?;
     let (world, _) = World::build(layout, &PhysicsSolver, 0.25, None)?;
     println!(
         "one STE update on one core: {} new readings, the last of {} successive updates ending at {} readings ({} candidates), medians",
@@ -155,8 +166,14 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
             nuisance.push(json!({"nuisance": what, "values": k, "update_ms": all.update_s * 1e3, "one_bank_ms": one.update_s * 1e3, "per_added_value": per_added}));
         }
     }
-    let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let ep = run_episode(&world, &config, [5.1, 2.1], [15.0, 1.0], 0, false)?;
+    let ep = run_episode(
+        &world,
+        &config,
+        [a.source.0, a.source.1],
+        [a.start.0, a.start.1],
+        0,
+        false,
+    )?;
     println!(
         "  whole run (rank, sensor-ii, solver bank ready, all cores): {:.2} s, {} iterations, {} readings",
         ep.wall_time_s,
@@ -194,8 +211,9 @@ pub struct BenchServeArgs {
 pub fn bench_serve(a: BenchServeArgs) -> Result<()> {
     let (room, config, model) = a.session.room()?;
     println!(
-        "one session iteration (100 new readings, then planning; all cores), {} candidates, {model}:",
-        room.sampler.len()
+        "one session iteration (100 new readings, then planning; all cores), {} candidates, {}:",
+        room.sampler.len(),
+        model.name()
     );
     let mut sizes = Vec::new();
     for &n in &a.sizes {

@@ -6,8 +6,10 @@ use anyhow::Result;
 use clap::Args;
 
 use plumenet::io;
+use plumenet::io::sha256_hex;
 use plumenet::layout::Layout;
 use plumenet::physics::wind::WindField;
+use plumenet::plume::PlumeModel;
 use plumenet::sim::Reality;
 use plumenet::ste::{Feature, RoomBanks, SensorPreset, SteParams};
 
@@ -39,10 +41,14 @@ pub struct SessionArgs {
 
 impl SessionArgs {
     /// The layout's banks, the session's settings (checked before the banks are computed)
-    /// and the model's name; notes go to standard error (standard output may be a protocol's).
+    /// and the model; notes go to standard error (standard output may be a protocol's).
     pub(super) fn room(
         &self,
-    ) -> Result<(RoomBanks, plumenet::ste::session::SessionConfig, String)> {
+    ) -> Result<(
+        RoomBanks,
+        plumenet::ste::session::SessionConfig,
+        Box<dyn PlumeModel>,
+    )> {
         let layout = Layout::load(&self.layout)?;
         let (room, params, model) =
             self.plume
@@ -55,11 +61,21 @@ impl SessionArgs {
         Ok((room, config, model))
     }
 
-    /// A fresh session, with the layout's and the model's names.
-    fn session(&self) -> Result<(plumenet::ste::session::Session, String, String)> {
+    /// A fresh session, with the layout's and the model's names, and the session's name in a
+    /// state file: the layout (its name and content), the plume model (its name and digest)
+    /// and the feature, so that a state file of another session is refused.
+    fn session(&self) -> Result<(plumenet::ste::session::Session, String, String, String)> {
         let (room, config, model) = self.room()?;
+        let name = layout_name(&self.layout);
+        let owner = format!(
+            "layout {name} {}, model {} {}, feature {}",
+            &sha256_hex(room.layout.to_json().as_bytes())[..16],
+            model.name(),
+            model.digest().chars().take(16).collect::<String>(),
+            config.ste.feature.name()
+        );
         let session = plumenet::ste::session::Session::new(&room, config)?;
-        Ok((session, layout_name(&self.layout), model))
+        Ok((session, name, model.name(), owner))
     }
 }
 
@@ -143,11 +159,11 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
 pub fn serve(a: ServeArgs) -> Result<()> {
     use plumenet::service::{StateFile, serve_lines, serve_tcp};
     use plumenet::ste::protocol::{Journal, NoJournal, Protocol};
-    let (mut session, name, model) = a.session.session()?;
+    let (mut session, name, model, owner) = a.session.session()?;
     let mut journal: Box<dyn Journal> = match &a.state {
         None => Box::new(NoJournal),
         Some(path) => {
-            let (file, restored) = StateFile::open(path)?;
+            let (file, restored) = StateFile::open(path, &owner)?;
             session.add_readings(&restored.readings)?;
             session.update()?;
             eprintln!(
@@ -248,7 +264,7 @@ pub enum PoseTypeArg {
 #[cfg(feature = "ros2")]
 pub fn ros2_node(a: Ros2NodeArgs) -> Result<()> {
     use plumenet::ros::node::{NodeSettings, PoseType, ReadingType, SteNode};
-    let (session, name, model) = a.session.session()?;
+    let (session, name, model, _) = a.session.session()?;
     let settings = NodeSettings {
         namespace: a.namespace,
         name: a.name,

@@ -57,7 +57,8 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let mismatch = a.reality.mismatch()?;
     let feature = Feature::from(a.feature);
     a.run.check(&layout)?;
-    let (room, params, model_name) = a.plume.room(layout, &a.features, feature, false)?;
+    let (room, params, model) = a.plume.room(layout, &a.features, feature, false)?;
+    let model_name = model.name();
     let world = World::new(room)?.with_mismatch(mismatch)?;
     let config = a.run.config(params, a.sensor.into());
     let start = a.trial.start(&world.room.layout, &config.robot, a.seed)?;
@@ -188,7 +189,8 @@ pub fn replay_log(a: ReplayArgs) -> Result<()> {
         layout.check_source(x, y)?;
     }
     let feature = Feature::from(a.feature);
-    let (room, params, model_name) = a.plume.room(layout, &a.features, feature, false)?;
+    let (room, params, model) = a.plume.room(layout, &a.features, feature, false)?;
+    let model_name = model.name();
     let steps = if a.html.is_some() {
         a.html_steps as usize
     } else {

@@ -15,9 +15,8 @@
 //! are the wind solver's exactly divergence-free face velocities, so the scheme conserves mass to
 //! round-off. Face coefficients follow Patankar's generalised form
 //! `a_nb = D A(|Pe|) + max(-F, 0)` with the cell Peclet number `Pe = F / D`; [`Scheme`] selects
-//! `A`. The default [`Scheme::Central`] is second-order (its observed order on a manufactured
-//! solution is in `docs/method.md`, and its error against the analytic point source is measured
-//! by `plumenet bench`); where a face's Peclet number exceeds 2 it
+//! `A`. The default [`Scheme::Central`] is second-order (the tests verify its observed order on a
+//! manufactured solution, `docs/method.md`, and its error against the analytic point source); where a face's Peclet number exceeds 2 it
 //! falls back to the power-law profile, which keeps the matrix an M-matrix.
 //!
 //! **Point source.** The unit rate is spread over the four cell centres around the source with

@@ -454,6 +454,23 @@ pub fn simulate_robot<S: Steering>(
     })
 }
 
+/// Checks that the robot can stand at `start` in `layout`.
+///
+/// # Errors
+/// [`Error::Source`] when `start` is closer to an obstacle or a wall than the robot's radius and
+/// clearance (or outside the room); [`Error::Parameter`] for bad robot settings.
+pub fn check_start(layout: &Layout, robot: &RobotParams, start: [f64; 2]) -> Result<()> {
+    let keep = robot.radius_m + robot.clearance_m;
+    if Occupancy::new(layout, keep)?.is_free(start[0], start[1]) {
+        return Ok(());
+    }
+    Err(Error::Source {
+        x: start[0],
+        y: start[1],
+        reason: format!("the robot cannot start here: keep {keep:.2} m from obstacles and walls"),
+    })
+}
+
 /// Runs one localisation episode.
 ///
 /// # Errors
@@ -472,17 +489,7 @@ pub fn run_episode(
     let layout = &world.room.layout;
     config.robot.check()?;
     layout.check_source(source[0], source[1])?;
-    let occupancy = Occupancy::new(layout, config.robot.radius_m + config.robot.clearance_m)?;
-    if !occupancy.is_free(start[0], start[1]) {
-        return Err(Error::Source {
-            x: start[0],
-            y: start[1],
-            reason: format!(
-                "the robot cannot start here: keep {} m from obstacles and walls",
-                config.robot.radius_m + config.robot.clearance_m
-            ),
-        });
-    }
+    check_start(layout, &config.robot, start)?;
     let mut field = Field::start(&world.reality, &config.flight(), source, start, seed)?;
     let mut session = Session::new(&world.room, config.session(seed))?;
     let mut history = Vec::new();

@@ -59,11 +59,24 @@ impl Journal for NoJournal {
 #[derive(Debug, Deserialize)]
 #[serde(tag = "op", rename_all = "lowercase", deny_unknown_fields)]
 enum Op {
-    Hello,
+    // Struct variants, even when empty: serde lets a unit variant carry unknown fields.
+    Hello {},
     Readings { readings: Vec<Sample> },
     Iterate { position: Option<[f64; 2]> },
-    Belief,
-    Reset,
+    Belief {},
+    Reset {},
+}
+
+/// The JSON type of a value, for messages.
+fn kind(value: &Value) -> &'static str {
+    match value {
+        Value::Null => "null",
+        Value::Bool(_) => "a boolean",
+        Value::Number(_) => "a number",
+        Value::String(_) => "a string",
+        Value::Array(_) => "an array",
+        Value::Object(_) => "an object",
+    }
 }
 
 /// A session behind the protocol.
@@ -100,9 +113,15 @@ impl Protocol {
                     .as_object_mut()
                     .and_then(|o| o.remove("id"))
                     .unwrap_or(Value::Null);
-                let reply = serde_json::from_value::<Op>(request)
-                    .map_err(|e| format!("bad request: {e}"))
-                    .and_then(|op| self.run(op, journal).map_err(|e| e.to_string()));
+                let reply = if request.is_object() {
+                    serde_json::from_value::<Op>(request).map_err(|e| format!("bad request: {e}"))
+                } else {
+                    Err(format!(
+                        "bad request: a request is a JSON object such as {{\"id\": 1, \"op\": \"hello\"}}, got {}",
+                        kind(&request)
+                    ))
+                }
+                .and_then(|op| self.run(op, journal).map_err(|e| e.to_string()));
                 (id, reply)
             }
         };
@@ -123,14 +142,14 @@ impl Protocol {
 
     fn run(&mut self, op: Op, journal: &mut dyn Journal) -> Result<Value> {
         Ok(match op {
-            Op::Hello => self.hello.clone(),
+            Op::Hello {} => self.hello.clone(),
             Op::Readings { readings } => {
                 self.session.check_readings(&readings)?;
                 journal.append(&readings)?;
                 json!({ "accepted": self.session.add_readings(&readings)? })
             }
             Op::Iterate { position } => json!(self.session.iterate(position)?),
-            Op::Belief => {
+            Op::Belief {} => {
                 let est = self.session.estimator();
                 json!({
                     "estimate": est.estimate(),
@@ -138,7 +157,7 @@ impl Protocol {
                     "uncertainty": est.uncertainty(None),
                 })
             }
-            Op::Reset => {
+            Op::Reset {} => {
                 journal.clear()?;
                 self.session.reset()?;
                 json!({})
