@@ -86,3 +86,13 @@ pub fn assert_err<T, E: std::fmt::Display>(result: Result<T, E>, needle: &str) {
         }
     }
 }
+
+/// Property-test settings: `cases` cases, and a failing case reported in the test's output
+/// only (never saved into the checkout).
+pub fn proptest_config(cases: u32) -> proptest::test_runner::Config {
+    proptest::test_runner::Config {
+        cases,
+        failure_persistence: None,
+        ..proptest::test_runner::Config::default()
+    }
+}

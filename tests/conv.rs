@@ -168,7 +168,7 @@ fn shapes() -> impl Strategy<Value = ConvShape> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(crate::common::proptest_config(24))]
 
     /// Forward equals Burn's Conv2d within 1e-5 and the three gradients equal Burn's autodiff
     /// gradients within 1e-4 (relative to the largest magnitude), with and without ReLU.

@@ -159,7 +159,7 @@ fn levels_of_a_calibrated_posterior_are_uniform() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(crate::common::proptest_config(64))]
 
     /// The region at a level is the smallest set reaching it: brute force over subsets
     /// counts the fewest cells whose mass reaches the level.

@@ -200,7 +200,7 @@ fn edf_brute_force(values: &[f64]) -> Vec<f32> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(200))]
+    #![proptest_config(crate::common::proptest_config(200))]
 
     /// The sorted-list EDF, updated chunk by chunk, equals the O(n^2) definition, ties included.
     #[test]

@@ -243,6 +243,19 @@ impl Manifest {
                 },
             );
         }
+        // The manifest goes first and comes back last, so a run killed between the arrays
+        // leaves no manifest: the directory is never taken for a complete dataset.
+        let manifest = dir.join("manifest.json");
+        match std::fs::remove_file(&manifest) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(Error::Io {
+                    action: "cannot remove",
+                    path: manifest,
+                    source: e,
+                });
+            }
+            _ => {}
+        }
         let path = |name: &str| dir.join(format!("{name}.npy"));
         let sources = a.source_layout.len();
         io::write_npy(&path("obstacle_mask"), &Array1::from(a.obstacle_mask))?;

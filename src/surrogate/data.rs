@@ -474,14 +474,23 @@ impl TrainingData {
         let concentration = flat("concentration")?;
         let owner = io::read_npy::<u32, Ix1>(&dir.join("source_layout.npy"))?;
         let xy = io::read_npy::<f32, Ix2>(&dir.join("source_xy.npy"))?;
-        if concentration
-            .iter()
-            .chain(wind.iter())
-            .any(|c| !c.is_finite())
-        {
-            return Err(bad(
-                "concentration.npy or wind.npy holds NaN or infinity".into()
-            ));
+        for (name, array) in [
+            ("concentration", &concentration),
+            ("wind", &wind),
+            ("signed_distance", &sdf),
+            ("obstacle_mask", &masks),
+        ] {
+            if array.iter().any(|c| !c.is_finite()) {
+                return Err(bad(format!("{name}.npy holds NaN or infinity")));
+            }
+        }
+        if xy.dim() != (owner.len(), 2) {
+            return Err(bad(format!(
+                "source_xy.npy has shape {:?}, not [{}, 2] (one row per source in \
+                 source_layout.npy)",
+                xy.shape(),
+                owner.len()
+            )));
         }
         let (masks, sdf, wind, concentration) = (
             masks.as_slice().unwrap_or_default(),
@@ -539,6 +548,9 @@ impl TrainingData {
                 )));
             }
             let layout = &layouts[l];
+            layout
+                .check_source(f64::from(xy[[s, 0]]), f64::from(xy[[s, 1]]))
+                .map_err(|e| bad(format!("source {s}: {e}")))?;
             let frame = Frame::of(layout);
             let (h, w) = layout.shape();
             let field = concentration

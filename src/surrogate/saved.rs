@@ -105,7 +105,26 @@ impl SavedModel {
     /// [`Error::Io`]/[`Error::Json`] for missing or malformed files, [`Error::Model`] for another
     /// format or a weights file that does not match its digest (truncated or replaced).
     pub fn load(dir: &Path, device: &Device) -> Result<(Self, PlumeNet)> {
-        let saved: SavedModel = io::read_json(&dir.join("config.json"))?;
+        let config = dir.join("config.json");
+        let saved: SavedModel = io::read_json(&config)?;
+        // The architecture is Burn's config type, which takes unknown fields silently: an
+        // architecture this crate does not know is refused here instead.
+        let written: serde_json::Value = io::read_json(&config)?;
+        let known = serde_json::to_value(&saved.architecture).map_err(|e| Error::Json {
+            path: config.clone(),
+            source: e,
+        })?;
+        if let (Some(written), Some(known)) = (
+            written.get("architecture").and_then(|a| a.as_object()),
+            known.as_object(),
+        ) && let Some(unknown) = written.keys().find(|k| !known.contains_key(*k))
+        {
+            return Err(Error::Model(format!(
+                "{}: the architecture has a field {unknown:?} this plumenet does not know \
+                 (a model of another architecture or a newer plumenet)",
+                dir.display()
+            )));
+        }
         let legacy = saved.format == LEGACY_MODEL_FORMAT;
         if !(saved.format == MODEL_FORMAT || legacy)
             || legacy != saved.ranges.is_none()

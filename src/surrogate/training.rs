@@ -4,8 +4,9 @@
 //! `out/` receives `weights.bpk` (burnpack) and `config.json` whenever the validation score
 //! ([`super::config::Selection`]: the loss, or the maps' median relative L2 error) improves
 //! (both written atomically), and `out/checkpoint/` the latest epoch's model, optimizer state
-//! and progress, from which an interrupted run resumes with identical results. Re-running with
-//! a higher `epochs` continues a finished run.
+//! and progress (`state.json`, written last, names the epoch whose files to read), from which a
+//! run interrupted anywhere, in the middle of writing a checkpoint too, resumes with identical
+//! results. Re-running with a higher `epochs` continues a finished run.
 
 use std::path::Path;
 
@@ -310,13 +311,13 @@ pub fn train(
                 checkpoint.display()
             )));
         }
-        let model = load_weights(config.model.init(&device), &checkpoint.join("model.bpk"))?;
-        let bytes =
-            std::fs::read(checkpoint.join("optimizer.bin")).map_err(|source| Error::Io {
-                action: "cannot read",
-                path: checkpoint.join("optimizer.bin"),
-                source,
-            })?;
+        let (model_file, optim_file) = checkpoint_files(&checkpoint, state.history.len());
+        let model = load_weights(config.model.init(&device), &model_file)?;
+        let bytes = std::fs::read(&optim_file).map_err(|source| Error::Io {
+            action: "cannot read",
+            path: optim_file.clone(),
+            source,
+        })?;
         let optim = fresh_optim()
             .from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes))
             .map_err(|e| Error::Model(format!("damaged optimizer checkpoint: {e:?}")))?;
@@ -388,20 +389,25 @@ pub fn train(
         let since_best = epoch - state.best.map_or(epoch, |b| b.epoch);
         state.stopped_early = since_best >= config.patience;
         let finished = epoch == config.epochs || state.stopped_early;
+        // The epoch's model and optimizer go to files of their own, then state.json names the
+        // epoch: a run killed anywhere in between resumes from the previous epoch's files,
+        // which are removed only after the new state.json is in place.
         io::create_dir_all(&checkpoint)?;
+        let (model_file, optim_file) = checkpoint_files(&checkpoint, state.history.len());
         let model_bytes = weights_bytes(&model)?;
-        io::write_atomic(&checkpoint.join("model.bpk"), |b| {
+        io::write_atomic(&model_file, |b| {
             b.extend_from_slice(&model_bytes);
             Ok(())
         })?;
         let optim_bytes = optim
             .into_bytes()
             .map_err(|e| Error::Model(format!("cannot serialise the optimizer: {e:?}")))?;
-        io::write_atomic(&checkpoint.join("optimizer.bin"), |b| {
+        io::write_atomic(&optim_file, |b| {
             b.extend_from_slice(&optim_bytes);
             Ok(())
         })?;
         io::write_json(&checkpoint.join("state.json"), &state)?;
+        remove_other_checkpoints(&checkpoint, &[&model_file, &optim_file]);
         // The final config.json carries the full history.
         if finished {
             let best = Surrogate::load(out)?;
@@ -413,4 +419,39 @@ pub fn train(
         }
     }
     Ok(state)
+}
+
+/// The model and optimizer files of the checkpoint after `epochs` epochs; a checkpoint written
+/// by an older plumenet (`model.bpk`, `optimizer.bin`) when only that one is there.
+fn checkpoint_files(dir: &Path, epochs: usize) -> (std::path::PathBuf, std::path::PathBuf) {
+    let (model, optim) = (
+        dir.join(format!("model-{epochs}.bpk")),
+        dir.join(format!("optimizer-{epochs}.bin")),
+    );
+    if !model.exists() && dir.join("model.bpk").exists() {
+        return (dir.join("model.bpk"), dir.join("optimizer.bin"));
+    }
+    (model, optim)
+}
+
+/// Removes the checkpoint's model and optimizer files other than `keep` (earlier epochs, an
+/// epoch interrupted before its state was written, temporary files of a killed write). A file
+/// that cannot be removed is left: it is never read.
+fn remove_other_checkpoints(dir: &Path, keep: &[&Path]) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for path in entries.flatten().map(|e| e.path()) {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let ours = name.starts_with("model")
+            || name.starts_with("optimizer")
+            || name.starts_with(".model")
+            || name.starts_with(".optimizer");
+        if ours && !keep.contains(&path.as_path()) {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
 }
