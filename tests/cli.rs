@@ -1482,3 +1482,60 @@ fn serve_refuses_a_state_file_of_another_session() {
         assert_eq!(std::fs::read(state).unwrap().len(), written);
     }
 }
+
+/// The calibration benchmark's quick form runs to success (one iteration per run, so that the
+/// banks are most of its cost) and writes its table, rows and picture: every suite with both
+/// plume models, each row's coverages between 0 and 1 and its run counts whole.
+#[test]
+fn the_calibration_benchmark_runs_in_its_quick_form() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("calibration");
+    plumenet_ok(&[
+        "calibration",
+        "--quick",
+        "--max-iterations",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let rows = read_json(out.join("calibration.json"));
+    let rows = rows.as_array().unwrap();
+    let mut cells: Vec<(String, String)> = rows
+        .iter()
+        .map(|r| {
+            let text = |k: &str| r[k].as_str().unwrap().to_string();
+            (text("suite"), text("model"))
+        })
+        .collect();
+    cells.sort();
+    let mut expected = Vec::new();
+    for suite in ["arena", "mismatch", "surveys", "unseen rooms"] {
+        for model in ["plumenet", "solver"] {
+            expected.push((suite.to_string(), model.to_string()));
+        }
+    }
+    assert_eq!(cells, expected);
+    for r in rows {
+        let runs = r["runs"].as_u64().unwrap();
+        assert!(runs > 0, "{r}");
+        for k in ["cover_50", "cover_90"] {
+            let c = r[k].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&c), "{r}");
+            // A share of whole runs.
+            assert!(
+                (c * runs as f64 - (c * runs as f64).round()).abs() < 1e-9,
+                "{r}"
+            );
+        }
+        assert!(r["cover_50"].as_f64() <= r["cover_90"].as_f64(), "{r}");
+    }
+    let csv = std::fs::read_to_string(out.join("calibration.csv")).unwrap();
+    assert_eq!(csv.lines().count(), rows.len() + 1);
+    assert!(
+        std::fs::read_to_string(out.join("calibration.md"))
+            .unwrap()
+            .contains("| suite |")
+    );
+    let picture = image::open(out.join("reliability.png")).unwrap();
+    assert!(picture.width() > 300 && picture.height() > 200);
+}

@@ -10,6 +10,7 @@ mod dataset;
 mod determinism;
 mod filament;
 mod frame;
+mod golden;
 mod hostile;
 mod layout;
 mod project_files;
