@@ -421,18 +421,19 @@ fn simulate(a: SimulateArgs) -> Result<()> {
     if let Some(path) = &a.wind_out {
         io::write_npy(path, &wind.centred().mapv(|v| v as f32))?;
     }
-    let outlet = transport.outlet_flux(&field);
+    let (outlet, inlet) = (transport.outlet_flux(&field), transport.inlet_flux(&field));
     let peak = field.iter().copied().fold(0.0, f64::max);
     println!(
-        "wind: {} iterations, residual {:.1e}; outlet flux {:.4} of 1 unit/s; peak {:.4} units/m2",
-        wind.steps, wind.residual, outlet, peak
+        "wind: {} iterations, residual {:.1e}; of the 1 unit/s released, {:.4} leave through the outlet and {:.4} upwind through the inlet; peak {:.4} units/m2",
+        wind.steps, wind.residual, outlet, inlet, peak
     );
     println!("wrote {}", a.out.display());
     if let Some(path) = &a.json {
         let report = json!({
             "layout": a.layout, "source": [a.source.0, a.source.1], "out": a.out,
             "wind_iterations": wind.steps, "wind_residual": wind.residual,
-            "outlet_flux": outlet, "peak": peak, "grid": [layout.ny(), layout.nx()],
+            "outlet_flux": outlet, "inlet_flux": inlet, "peak": peak,
+            "grid": [layout.ny(), layout.nx()],
         });
         io::write_json(path, &report)?;
     }

@@ -33,8 +33,10 @@ fn simulate_writes_field_wind_png_and_report() {
     assert_eq!(wind.dim(), (2, 32, 144));
     let png = image::open(tmp.path().join("f.png")).unwrap();
     assert!(png.width() > 144 && png.height() > 32);
+    // The release leaves through the outlet or the inlet, to the fields' single precision.
     let report = read_json(tmp.path().join("r.json"));
-    assert!((report["outlet_flux"].as_f64().unwrap() - 1.0).abs() < 0.02);
+    let flux = |k: &str| report[k].as_f64().unwrap();
+    assert!((flux("outlet_flux") + flux("inlet_flux") - 1.0).abs() < 0.5 * f64::from(f32::EPSILON));
 }
 
 #[test]
