@@ -3,7 +3,9 @@
 use ndarray::{Ix2, Ix3};
 use plumenet::io::read_npy;
 
-use crate::common::{assert_clean_failure, command, plumenet, plumenet_ok, read_json};
+use crate::common::{
+    assert_clean_failure, command, plumenet, plumenet_ok, read_json, spawn_server,
+};
 
 const TUNNEL: &str = "data/layouts/wind-tunnel.json";
 
@@ -908,25 +910,7 @@ fn serve_survives_sigkill_with_its_state_file() {
     use std::io::{BufRead, BufReader, Write};
     let tmp = tempfile::tempdir().unwrap();
     let state = tmp.path().join("state.jsonl");
-    let start = || {
-        let mut child = command()
-            .args(["serve", "--solver", "--listen", "127.0.0.1:0", "--state"])
-            .arg(&state)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap();
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let at = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap()
-            .to_string();
-        (child, at)
-    };
+    let start = || spawn_server(&["--solver".as_ref(), "--state".as_ref(), state.as_os_str()]);
     let talk = |at: &str, lines: &[String]| -> Vec<serde_json::Value> {
         let stream = std::net::TcpStream::connect(at).unwrap();
         let mut reader = BufReader::new(stream.try_clone().unwrap());
@@ -1374,28 +1358,7 @@ fn serve_on_stdin_and_robot_sim_against_a_server_run_to_the_end() {
     assert_eq!(replies[2]["ok"], false);
     assert_eq!(replies[3]["posterior"].as_array().unwrap().len(), 288);
 
-    let mut server = command()
-        .args([
-            "serve",
-            "--solver",
-            "--layout",
-            &room,
-            "--listen",
-            "127.0.0.1:0",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(server.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let at = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap()
-        .to_string();
+    let (mut server, at) = spawn_server(&["--solver".as_ref(), "--layout".as_ref(), room.as_ref()]);
     let json = tmp.path().join("robot.json");
     let out = plumenet(&[
         "robot-sim",

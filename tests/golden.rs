@@ -76,6 +76,27 @@ const PROBES: [(f64, f64); 8] = [
 /// Candidates probed in the banks (indices into the arena's 1112 candidates at 0.25 m).
 const CANDIDATES: [usize; 5] = [0, 77, 400, 801, 1111];
 
+/// Adds the values of `bank` (the fields of the probed candidates, in order) at the probe
+/// points, labelled with `model`, the source and the point.
+fn probe_bank(
+    values: &mut BTreeMap<String, f64>,
+    model: &str,
+    l: &plumenet::layout::Layout,
+    bank: &ndarray::Array3<f32>,
+    candidates: &[[f64; 2]],
+) {
+    for (n, k) in CANDIDATES.iter().enumerate() {
+        let [sx, sy] = candidates[*k];
+        for (x, y) in PROBES {
+            let (j, i) = l.cell_of(x, y);
+            values.insert(
+                format!("{model}, source ({sx}, {sy}), cell at ({x}, {y})"),
+                f64::from(bank[[n, j, i]]),
+            );
+        }
+    }
+}
+
 #[test]
 fn the_arena_wind_and_solver_bank_match_their_reference_values() {
     let l = wind_tunnel();
@@ -91,16 +112,7 @@ fn the_arena_wind_and_solver_bank_match_their_reference_values() {
         values.insert(format!("wind u at ({x}, {y})"), u);
         values.insert(format!("wind v at ({x}, {y})"), v);
     }
-    for (n, k) in CANDIDATES.iter().enumerate() {
-        let [sx, sy] = candidates[*k];
-        for (x, y) in PROBES {
-            let (j, i) = l.cell_of(x, y);
-            values.insert(
-                format!("solver, source ({sx}, {sy}), cell at ({x}, {y})"),
-                f64::from(bank[[n, j, i]]),
-            );
-        }
-    }
+    probe_bank(&mut values, "solver", &l, &bank, &candidates);
     // Both come from direct solves (the wind's iteration converged to its tolerance) and the
     // bank is stored in single precision: 1e-5 relative, and 1e-9 for the far upwind tails.
     check_golden("arena-wind-and-solver-bank", &values, 1e-5, 1e-9);
@@ -113,16 +125,7 @@ fn the_shipped_models_arena_bank_matches_its_reference_values() {
     let candidates = l.candidates(0.25).unwrap();
     let bank = model.bank(&l, &CANDIDATES.map(|k| candidates[k])).unwrap();
     let mut values = BTreeMap::new();
-    for (n, k) in CANDIDATES.iter().enumerate() {
-        let [sx, sy] = candidates[*k];
-        for (x, y) in PROBES {
-            let (j, i) = l.cell_of(x, y);
-            values.insert(
-                format!("plumenet, source ({sx}, {sy}), cell at ({x}, {y})"),
-                f64::from(bank.fields[[n, j, i]]),
-            );
-        }
-    }
+    probe_bank(&mut values, "plumenet", &l, &bank.fields, &candidates);
     // Single-precision network: each instruction set's kernels round differently (tests/conv.rs
     // compares them), so 1e-4 relative, and 1e-6 (of fields that peak near 1) in clean air.
     check_golden("default-model-arena-bank", &values, 1e-4, 1e-6);
