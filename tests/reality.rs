@@ -67,6 +67,11 @@ fn the_meander_is_an_ornstein_uhlenbeck_angle_and_off_by_default() {
             plume.meander_deg()
         })
         .collect();
+    // The bounds are about four standard errors of the estimates for an AR(1) series of 8000
+    // samples with lag-one correlation r = exp(-0.1): the mean's 30 / sqrt(8000 (1 - r) /
+    // (1 + r)) = 1.5 degrees (bound 6); the standard deviation's 30 / sqrt(2 * 8000 (1 - r^2)
+    // / (1 + r^2)) = 0.75 (bound 3); the lag-20 s correlation's 0.027 by Bartlett's formula
+    // (bound 0.1).
     let n = angles.len() as f64;
     let mean = angles.iter().sum::<f64>() / n;
     let var = angles.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / n;
