@@ -86,10 +86,12 @@ fn turned_layout_gives_the_turned_physics() {
             .zip(&expected)
             .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
         assert!(diff <= 1e-12 * scale, "{from:?}: {diff}");
-        // Mass balance: the unit release leaves through this layout's outlet.
+        // Mass balance: the unit release leaves through this layout's outlet or its inlet, to
+        // the fields' single precision.
+        let balance = transport.outlet_flux(&field) + transport.inlet_flux(&field);
         assert!(
-            (transport.outlet_flux(&field) - 1.0).abs() < 0.02,
-            "{from:?}"
+            (balance - 1.0).abs() < 0.5 * f64::from(f32::EPSILON),
+            "{from:?}: {balance}"
         );
         // The plume lies downwind of the source: its centre of mass is ahead along the wind.
         let (mut mass, mut ahead) = (0.0, 0.0);
@@ -201,8 +203,8 @@ fn plumenet_bank_turns_with_the_layout() {
 
 /// The STE with the exact bank finds a source in the paper arena turned so that the wind comes
 /// from the east, from a start far downwind (the planner's upwind goals turn too): five runs
-/// end within a metre of it on the median, none further than 2 m (a planner that went the
-/// wrong way would end metres off or at its iteration limit).
+/// each end within 1.5 m of it (a planner that went the wrong way would end metres off or at
+/// its iteration limit).
 #[test]
 fn ste_localises_with_wind_from_the_east() {
     let layout = turned(&wind_tunnel(), WindFrom::East);
@@ -211,13 +213,14 @@ fn ste_localises_with_wind_from_the_east() {
     let (sx, sy) = frame.from_canonical(4.5, 2.5);
     let (x0, y0) = frame.from_canonical(15.0, 1.0);
     let config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
-    let mut errors: Vec<f64> = (0..5)
+    let errors: Vec<f64> = (0..5)
         .map(|seed| {
             run_episode(&world, &config, [sx, sy], [x0, y0], seed, false)
                 .unwrap()
                 .error_m
         })
         .collect();
-    errors.sort_by(f64::total_cmp);
-    assert!(errors[2] < 1.0 && errors[4] < 2.0, "errors {errors:?} m");
+    // Each run finds the source: within 1.5 m, the distance beyond which the calibration
+    // benchmark counts an estimate as wrong.
+    assert!(errors.iter().all(|&e| e < 1.5), "errors {errors:?} m");
 }
