@@ -1051,6 +1051,72 @@ fn bad_logs_give_clear_errors() {
     assert_eq!((s[0].t, s[0].x, s[0].y, s[0].value), (0.0, 3.0, 1.5, 2.5));
 }
 
+/// A run that has met no plume does not stop, however concentrated its belief: readings of
+/// clean air say where the source is not, never where it is. The plume signal (the highest
+/// reading above the median, in noise levels) is calibration-free, stays well below the
+/// threshold for the sensor's noise alone and rises far above it in a puff of gas.
+#[test]
+fn a_run_that_met_no_plume_does_not_stop() {
+    use plumenet::ste::posterior::plume_signal;
+    use plumenet::ste::termination::PLUME_SIGNAL_NOISES;
+    let mut sensor = MoxSensor::preset(SensorPreset::SensorII, true).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for _ in 0..600 {
+        sensor.sample(0.0, 0.1, &mut rng);
+    }
+    let clean: Vec<f64> = (0..3000)
+        .map(|_| sensor.sample(0.0, 0.1, &mut rng))
+        .collect();
+    let noise_only = plume_signal(&clean);
+    assert!(noise_only < PLUME_SIGNAL_NOISES, "{noise_only}");
+    let scaled: Vec<f64> = clean.iter().map(|v| 2.5 * v + 7.0).collect();
+    assert!((plume_signal(&scaled) - noise_only).abs() < 1e-9 * noise_only);
+    // Ten seconds in a 1 ppm puff half way through.
+    let mut puffed = clean[..1500].to_vec();
+    puffed.extend((0..100).map(|_| sensor.sample(1.0, 0.1, &mut rng)));
+    puffed.extend((0..1400).map(|_| sensor.sample(0.0, 0.1, &mut rng)));
+    assert!(
+        plume_signal(&puffed) > 3.0 * PLUME_SIGNAL_NOISES,
+        "{}",
+        plume_signal(&puffed)
+    );
+    assert_eq!(plume_signal(&clean[..2]), 0.0);
+
+    // The same belief counts as concentrated under a target area of the whole room, unless a
+    // plume is required and the readings hold none.
+    let positions = synthetic_samples(3, 300);
+    let with = |values: &[f64]| -> Vec<Sample> {
+        positions
+            .iter()
+            .zip(values)
+            .map(|(s, &value)| Sample { value, ..*s })
+            .collect()
+    };
+    let whole_room = |require_plume| Termination {
+        target_area_m2: Some(72.0),
+        require_plume,
+        ..Termination::default()
+    };
+    let quiet = estimate(Feature::Rank, &with(&clean[..300]));
+    assert!(quiet.plume_signal() < PLUME_SIGNAL_NOISES);
+    assert!(whole_room(false).concentrated(&quiet));
+    assert!(!whole_room(true).concentrated(&quiet));
+    let mut values = clean[..300].to_vec();
+    values[150..160].copy_from_slice(&puffed[1500..1510]);
+    values[160..200].copy_from_slice(&puffed[1510..1550]);
+    let met = estimate(Feature::Rank, &with(&values));
+    assert!(
+        met.plume_signal() >= PLUME_SIGNAL_NOISES,
+        "{}",
+        met.plume_signal()
+    );
+    assert!(whole_room(true).concentrated(&met));
+    // The calibrated default requires it; the paper's rule does not.
+    let default = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
+    assert!(default.termination.require_plume);
+    assert!(!Termination::for_params(&default.ste.papers_rank()).require_plume);
+}
+
 #[test]
 fn termination_needs_a_stable_concentrated_belief() {
     let est = estimate(Feature::Rank, &synthetic_samples(2, 40));
@@ -1062,6 +1128,7 @@ fn termination_needs_a_stable_concentrated_belief() {
         grow_with_room: true,
         stable_iterations: 1,
         target_area_m2: None,
+        require_plume: false,
     };
     // The budget: 30 up to 72 m² of free floor, then with its square root (4 x 72 m²: twice);
     // a fixed limit stays.

@@ -499,6 +499,17 @@ pub(super) fn layout_name(path: &std::path::Path) -> String {
     )
 }
 
+/// How a run ended, in words: converged, or unresolved, saying so when the robot met no plume.
+pub(super) fn outcome(converged: bool, plume_signal: f64) -> &'static str {
+    if converged {
+        "converged"
+    } else if plume_signal < plumenet::ste::termination::PLUME_SIGNAL_NOISES {
+        "unresolved (iteration budget spent, no plume met)"
+    } else {
+        "unresolved (iteration budget spent)"
+    }
+}
+
 /// Prints an estimate, when there is one, with the two baselines under it, one per line, so
 /// that a reader sees what the estimator is compared with.
 pub(super) fn print_guesses(estimate: Option<Guess>, b: &Baselines) {

@@ -142,11 +142,7 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
         run.last.estimate[1],
         run.error_m,
         run.legs,
-        if run.last.converged {
-            "converged"
-        } else {
-            "unresolved (iteration budget spent)"
-        },
+        outcome(run.last.converged, run.last.plume_signal),
         run.readings
     );
     if let Some(path) = &a.json {

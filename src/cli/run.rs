@@ -73,11 +73,12 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
         source[1],
         start[0],
         start[1],
-        if episode.converged {
-            "converged"
-        } else {
-            "unresolved (iteration budget spent)"
-        },
+        outcome(
+            episode.converged,
+            plumenet::ste::posterior::plume_signal(
+                &episode.samples.iter().map(|s| s.value).collect::<Vec<_>>()
+            )
+        ),
         episode.iterations,
         episode.samples.len(),
         episode.wall_time_s

@@ -575,6 +575,12 @@ impl Estimator {
         self.fit
     }
 
+    /// How far the highest reading so far stands above the readings' median, in noise levels
+    /// ([`plume_signal`]): whether the readings hold a plume at all.
+    pub fn plume_signal(&self) -> f64 {
+        plume_signal(&self.readings)
+    }
+
     /// Shannon entropy of the posterior (nats).
     pub fn entropy(&self) -> f64 {
         entropy(&self.posterior)
@@ -637,8 +643,7 @@ pub fn clean_air_ties(values: &mut [f64]) {
     if values.len() < 3 {
         return;
     }
-    let diffs: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
-    let noise = 1.4826 * crate::stats::median(&diffs) / std::f64::consts::SQRT_2;
+    let noise = reading_noise(values);
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
     let baseline = sorted[(0.05 * (sorted.len() - 1) as f64).round() as usize];
@@ -657,8 +662,7 @@ pub fn drifting_clean_air_ties(values: &mut [f64], times: &[f64], window_s: f64)
     if values.len() < 3 {
         return;
     }
-    let diffs: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
-    let noise = 1.4826 * crate::stats::median(&diffs) / std::f64::consts::SQRT_2;
+    let noise = reading_noise(values);
     let original = values.to_vec();
     let (mut lo, mut hi) = (0, 0);
     let mut window = Vec::new();
@@ -678,6 +682,34 @@ pub fn drifting_clean_air_ties(values: &mut [f64], times: &[f64], window_s: f64)
         } else {
             *v - baseline
         };
+    }
+}
+
+/// The readings' noise level, calibration-free: `1.4826 median |d_i - d_(i-1)| / sqrt 2` over
+/// successive readings (white noise dominates their differences at 10 Hz, the plume and the
+/// sensor being slower). At least two readings.
+fn reading_noise(values: &[f64]) -> f64 {
+    let diffs: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    1.4826 * crate::stats::median(&diffs) / std::f64::consts::SQRT_2
+}
+
+/// How far the highest reading stands above the readings' median, in noise levels (estimated
+/// from successive readings' differences, as for [`clean_air_ties`]): calibration-free (unchanged by the sensor's gain and offset), 0 for
+/// fewer than three readings, infinite for noise-free readings that rise at all. Noise alone
+/// stays within a few levels; a plume the sensor met stands tens of them above.
+pub fn plume_signal(values: &[f64]) -> f64 {
+    if values.len() < 3 {
+        return 0.0;
+    }
+    let rise =
+        values.iter().copied().fold(f64::NEG_INFINITY, f64::max) - crate::stats::median(values);
+    let noise = reading_noise(values);
+    if rise <= 0.0 {
+        0.0
+    } else if noise > 0.0 {
+        rise / noise
+    } else {
+        f64::INFINITY
     }
 }
 

@@ -60,6 +60,12 @@ pub struct Iteration {
     /// Goodness of fit of the most probable candidate ([`Estimator::fit`]): about 1 or below
     /// when it explains the readings; `None` before the first reading.
     pub fit: Option<f64>,
+    /// How far the highest reading stands above the readings' median, in noise levels
+    /// ([`Estimator::plume_signal`]): below
+    /// [`PLUME_SIGNAL_NOISES`](crate::ste::termination::PLUME_SIGNAL_NOISES) the robot has met
+    /// no plume yet, and the default rule does not stop.
+    #[serde(default)]
+    pub plume_signal: f64,
     /// The candidates of the smallest set holding 90% of the posterior, most probable first.
     pub credible_region: Vec<[f64; 2]>,
     /// Whether the termination rule holds.
@@ -268,6 +274,7 @@ impl Session {
             estimate: self.est.estimate(),
             entropy: self.est.entropy(),
             fit: self.est.fit(),
+            plume_signal: self.est.plume_signal(),
             credible_region: region_cells(candidates, self.est.posterior(), CREDIBLE_MASS),
             converged: self.converged,
             done,
