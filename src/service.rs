@@ -7,7 +7,8 @@
 //! "session": "..."}`: the layout, the plume model and the feature), then one line per accepted
 //! batch: the batch's readings as a JSON array, written, flushed and synced before the reply
 //! goes out; a reset keeps only the header (synced too). On start the file is read back into
-//! the session; a file of another session is refused. A last line cut short by a crash (no
+//! the session; a file of another session is refused, and a file written before the header
+//! existed is read as it is and given the header. A last line cut short by a crash (no
 //! line break, or not a whole batch) is dropped and the file truncated to the intact lines;
 //! damage anywhere else is an error.
 
@@ -17,6 +18,7 @@ use std::net::{TcpListener, TcpStream, ToSocketAddrs};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::io;
 use crate::sim::episode::Steering;
 use crate::ste::posterior::Sample;
 use crate::ste::protocol::{Journal, Protocol};
@@ -86,6 +88,7 @@ impl StateFile {
         let mut rest = text.as_slice();
         let mut intact = 0;
         let mut dropped_torn_line = false;
+        let mut legacy = false;
         if !rest.is_empty() {
             let first = rest.split(|&b| b == b'\n').next().unwrap_or_default();
             match serde_json::from_slice::<StateHeader>(first) {
@@ -106,8 +109,11 @@ impl StateFile {
                     rest = &rest[first.len() + 1..];
                     intact = first.len() + 1;
                 }
+                // A file written before state files named their session: batches from the
+                // first line, read as they are, and the header put in front of them below.
+                _ if first.starts_with(b"[") => legacy = true,
                 // A header cut short by a crash before its line break: start afresh.
-                _ if first.len() == rest.len() && !first.starts_with(b"[") => {
+                _ if first.len() == rest.len() => {
                     rest = &[];
                     dropped_torn_line = true;
                 }
@@ -141,12 +147,22 @@ impl StateFile {
             }
             rest = next;
         }
+        if legacy {
+            // Rewritten whole (temporary file and rename), so a crash leaves either the old
+            // file or the new one.
+            io::write_atomic(path, |b| {
+                b.extend_from_slice(&header);
+                b.extend_from_slice(&text[..intact]);
+                Ok(())
+            })?;
+            intact += header.len();
+        }
         let mut file = OpenOptions::new()
             .create(true)
             .append(true)
             .open(path)
             .map_err(|e| io_err("cannot open", e))?;
-        if dropped_torn_line {
+        if dropped_torn_line && !legacy {
             file.set_len(intact as u64)
                 .and_then(|()| file.sync_all())
                 .map_err(|e| io_err("cannot truncate", e))?;

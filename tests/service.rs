@@ -206,9 +206,19 @@ fn the_state_file_survives_a_crash_and_drops_a_torn_line() {
     std::fs::write(&path, &damaged).unwrap();
     let err = StateFile::open(&path, OWNER).unwrap_err().to_string();
     assert!(err.contains("state line 1 is damaged"), "{err}");
-    std::fs::write(&path, "[]\n[]\n").unwrap();
+    std::fs::write(&path, "not a state file\n[]\n").unwrap();
     let err = StateFile::open(&path, OWNER).unwrap_err().to_string();
     assert!(err.contains("has no session header"), "{err}");
+    // A file written before state files named their session (batches from the first line, a
+    // torn last one) is read as it was and given the header in front of its intact lines.
+    let old: Vec<u8> = intact[header.len()..].to_vec();
+    let mut torn_old = old.clone();
+    torn_old.extend_from_slice(br#"[{"t":1e6"#);
+    std::fs::write(&path, &torn_old).unwrap();
+    let (_, restored) = StateFile::open(&path, OWNER).unwrap();
+    assert_eq!(restored.readings, data);
+    assert!(restored.dropped_torn_line);
+    assert_eq!(std::fs::read(&path).unwrap(), intact);
     // A header torn by a crash before its line break: the file starts afresh.
     std::fs::write(&path, &header[..20]).unwrap();
     let (_, restored) = StateFile::open(&path, OWNER).unwrap();
