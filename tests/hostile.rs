@@ -418,6 +418,22 @@ fn a_training_killed_while_writing_its_checkpoint_resumes_exactly() {
     left.sort();
     assert_eq!(left, ["model-3.bpk", "optimizer-3.bin", "state.json"]);
 
+    // A checkpoint in the format's first version (`model.bpk`, `optimizer.bin`) resumes the
+    // same way, and the next checkpoint is written in the epoch-stamped form.
+    let first = tmp.path().join("first");
+    stop(&first, 2);
+    let dir = first.join("checkpoint");
+    std::fs::rename(dir.join("model-2.bpk"), dir.join("model.bpk")).unwrap();
+    std::fs::rename(dir.join("optimizer-2.bin"), dir.join("optimizer.bin")).unwrap();
+    train(&data, &tiny_config(3), &first, &mut |_| ()).unwrap();
+    assert_eq!(losses(&first), losses(&straight));
+    let mut left: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["model-3.bpk", "optimizer-3.bin", "state.json"]);
+
     // A damaged optimizer state is refused, not silently restarted.
     let damaged = tmp.path().join("damaged");
     stop(&damaged, 1);

@@ -503,17 +503,21 @@ impl SteadyFlow {
         });
         let mut v = Array2::zeros((ny + 1, nx));
         mac.project(&mut u, &mut v);
-        // The body force on every free face (zero without one).
-        let on_faces = |faces: &Array2<Face>, offset: (f64, f64), pick: fn((f64, f64)) -> f64| {
-            Array2::from_shape_fn(faces.dim(), |(j, i)| match (faces[[j, i]], force) {
-                (Face::Free, Some(f)) => {
-                    pick(f((i as f64 + offset.0) * dx, (j as f64 + offset.1) * dx))
-                }
-                _ => 0.0,
-            })
-        };
-        let fu = on_faces(&mac.u_face, (0.0, 0.5), |f| f.0);
-        let fv = on_faces(&mac.v_face, (0.5, 0.0), |f| f.1);
+        // The body force on every free face, when there is one.
+        let forcing = force.map(|f| {
+            let on_faces = |faces: &Array2<Face>,
+                            offset: (f64, f64),
+                            pick: fn((f64, f64)) -> f64| {
+                Array2::from_shape_fn(faces.dim(), |(j, i)| match faces[[j, i]] {
+                    Face::Free => pick(f((i as f64 + offset.0) * dx, (j as f64 + offset.1) * dx)),
+                    Face::Fixed => 0.0,
+                })
+            };
+            (
+                on_faces(&mac.u_face, (0.0, 0.5), |f| f.0),
+                on_faces(&mac.v_face, (0.5, 0.0), |f| f.1),
+            )
+        });
 
         let scale = speed * speed / layout.height();
         let mut pressure = vec![0.0; mac.n_p];
@@ -560,8 +564,10 @@ impl SteadyFlow {
                 }
             }
             // Steady momentum residual with the current pressure and the body force.
-            ru += &fu;
-            rv += &fv;
+            if let Some((fu, fv)) = &forcing {
+                ru += fu;
+                rv += fv;
+            }
             mac.add_gradient(&mut ru, &mut rv, &pressure, -1.0);
             let residual = ru
                 .iter()

@@ -106,10 +106,14 @@ impl SavedModel {
     /// format or a weights file that does not match its digest (truncated or replaced).
     pub fn load(dir: &Path, device: &Device) -> Result<(Self, PlumeNet)> {
         let config = dir.join("config.json");
-        let saved: SavedModel = io::read_json(&config)?;
+        let written: serde_json::Value = io::read_json(&config)?;
+        let saved: SavedModel =
+            serde_json::from_value(written.clone()).map_err(|e| Error::Json {
+                path: config.clone(),
+                source: e,
+            })?;
         // The architecture is Burn's config type, which takes unknown fields silently: an
         // architecture this crate does not know is refused here instead.
-        let written: serde_json::Value = io::read_json(&config)?;
         let known = serde_json::to_value(&saved.architecture).map_err(|e| Error::Json {
             path: config.clone(),
             source: e,

@@ -311,7 +311,7 @@ pub fn train(
                 checkpoint.display()
             )));
         }
-        let (model_file, optim_file) = checkpoint_files(&checkpoint, state.history.len());
+        let (model_file, optim_file) = resume_files(&checkpoint, state.history.len());
         let model = load_weights(config.model.init(&device), &model_file)?;
         let bytes = std::fs::read(&optim_file).map_err(|source| Error::Io {
             action: "cannot read",
@@ -421,13 +421,18 @@ pub fn train(
     Ok(state)
 }
 
-/// The model and optimizer files of the checkpoint after `epochs` epochs; a checkpoint written
-/// by an older plumenet (`model.bpk`, `optimizer.bin`) when only that one is there.
+/// The model and optimizer files of the checkpoint after `epochs` epochs.
 fn checkpoint_files(dir: &Path, epochs: usize) -> (std::path::PathBuf, std::path::PathBuf) {
-    let (model, optim) = (
+    (
         dir.join(format!("model-{epochs}.bpk")),
         dir.join(format!("optimizer-{epochs}.bin")),
-    );
+    )
+}
+
+/// The checkpoint files to resume from after `epochs` epochs: [`checkpoint_files`], or those of
+/// the format's first version (`model.bpk`, `optimizer.bin`) when only they are there.
+fn resume_files(dir: &Path, epochs: usize) -> (std::path::PathBuf, std::path::PathBuf) {
+    let (model, optim) = checkpoint_files(dir, epochs);
     if !model.exists() && dir.join("model.bpk").exists() {
         return (dir.join("model.bpk"), dir.join("optimizer.bin"));
     }
