@@ -20,6 +20,7 @@ use plumenet::report::{FieldPanel, FieldPlot, Panel, save_figure};
 use plumenet::surrogate::config::{Selection, WarmStart};
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
 use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
+use plumenet::surrogate::model::{OperatorConfig, ROOM_CHANNELS};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
 
 mod args;
@@ -126,6 +127,10 @@ struct TrainArgs {
     /// to it); needs inputs with that prior (analytic or walled).
     #[arg(long)]
     prior_skip: bool,
+    /// Train the source-late operator network: the U-Net sees the room alone, once, and each
+    /// source enters in a light per-source head (analytic inputs; docs/plumenet.md).
+    #[arg(long, conflicts_with = "prior_skip")]
+    operator: bool,
     /// Start from this trained model's weights (its architecture and inputs too) instead of
     /// random ones, e.g. to continue a model on more or other data.
     #[arg(long)]
@@ -622,7 +627,12 @@ fn train(a: TrainArgs) -> Result<()> {
         learning_rate: a.learning_rate,
         inputs,
         model: PlumeNetConfig::new()
-            .with_in_channels(inputs.channels())
+            .with_in_channels(if a.operator {
+                ROOM_CHANNELS
+            } else {
+                inputs.channels()
+            })
+            .with_operator(a.operator.then(OperatorConfig::new))
             .with_filters(
                 a.filters
                     .clone()

@@ -10,6 +10,8 @@ use plumenet::layout::Layout;
 use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::surrogate::config::EpochLoss;
 
+use plumenet::frame::Frame;
+use plumenet::surrogate::model::{ConvImpl, OperatorConfig, ROOM_CHANNELS};
 use plumenet::surrogate::saved::{load_weights, weights_bytes, weights_digest};
 use plumenet::surrogate::{
     PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train,
@@ -1178,4 +1180,109 @@ fn the_kept_epoch_is_the_best_by_the_chosen_validation_score() {
     };
     let err = train(&data, &other, &tmp.path().join("rel"), &mut |_| ()).unwrap_err();
     assert!(matches!(err, Error::Model(_)), "{err}");
+}
+
+/// A tiny operator network: two groups of two terms, two room planes, four hidden units.
+fn tiny_operator(epochs: usize) -> TrainingConfig {
+    let mut config = tiny_config(epochs);
+    config.model = config
+        .model
+        .with_in_channels(ROOM_CHANNELS)
+        .with_operator(Some(
+            OperatorConfig::new()
+                .with_groups(2)
+                .with_group_size(2)
+                .with_room_planes(2)
+                .with_hidden(4),
+        ));
+    config
+}
+
+/// The operator network trains (its loss falls), and a bank, which runs the per-source head
+/// fused on the CPU (`surrogate::head`: tables of the prior, room terms computed once), gives
+/// the fields of the training pass (Burn tensors, per-source planes encoded cell by cell) to
+/// single-precision round-off, in every room of a dataset of several sizes and wind directions.
+#[test]
+fn the_operator_networks_fused_bank_is_its_training_pass() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = rooms_dataset(&tmp.path().join("data"), 6, 4);
+    let config = tiny_operator(4);
+    let state = train(&data, &config, &tmp.path().join("model"), &mut |_| ()).unwrap();
+    let (first, last) = (state.history[0].train, state.history[3].train);
+    assert!(last < first, "training loss {first} -> {last}");
+    let model = with_mirror_average(&tmp.path().join("model"), &tmp.path().join("one"), false);
+    let net = model.net();
+    let device = plumenet::surrogate::backend::device();
+    let norm = config.normalization;
+    let samples: Vec<usize> = (0..data.len()).collect();
+    let mut directions = std::collections::BTreeSet::new();
+    for room in data.rooms_of(&samples) {
+        let l = data.source_layout[room[0]];
+        let layout = &data.layouts()[l];
+        directions.insert(format!("{:?}", layout.spec().wind.from));
+        let (batch, _, _) = data
+            .room_batch(
+                std::slice::from_ref(&room),
+                None,
+                &norm,
+                config.pad_cells,
+                &device,
+            )
+            .unwrap();
+        let y = net.source_fields(
+            net.room_planes(batch.rooms, ConvImpl::Own),
+            &batch.taps,
+            batch.sources,
+            ConvImpl::Own,
+        );
+        let [_, _, hp, wp] = y.dims();
+        let y: Vec<f32> = y.into_data().try_to_vec::<f32>().unwrap();
+        let frame = Frame::of(layout);
+        let real: Vec<[f64; 2]> = room
+            .iter()
+            .map(|&s| {
+                let [x, y] = data.source_xy[s];
+                let (a, b) = frame.from_canonical(x, y);
+                [a, b]
+            })
+            .collect();
+        let fields = model.predict_many(layout, &real).unwrap();
+        let mask = &data.room(l).mask;
+        for (n, field) in fields.outer_iter().enumerate() {
+            let canonical = frame.cells_to_canonical(field);
+            let expected =
+                |j: usize, i: usize| norm.inverse(y[(n * hp + j) * wp + i], layout.wind_speed());
+            let peak = canonical.iter().fold(0.0f32, |m, &c| m.max(c));
+            assert!(peak > 0.0);
+            for ((j, i), &c) in canonical.indexed_iter() {
+                if mask[[j, i]] == 0.0 {
+                    let e = expected(j, i);
+                    assert!(
+                        (c - e).abs() <= 1e-5 * peak + 1e-5 * e.abs(),
+                        "room {l} source {n} cell ({j}, {i}): bank {c}, training pass {e}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(directions.len() > 1, "rooms of one wind direction only");
+}
+
+/// An operator network takes the analytic inputs without the prior skip, and rooms padded to
+/// whole pooling steps; anything else is refused before training starts.
+#[test]
+fn an_operator_network_refuses_inputs_and_padding_it_cannot_use() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let out = tmp.path().join("model");
+    let mut walled = tiny_operator(1);
+    walled.inputs = plumenet::surrogate::data::InputSet::Walled;
+    assert_err(train(&data, &walled, &out, &mut |_| ()), "analytic inputs");
+    let mut odd = tiny_operator(1);
+    odd.pad_cells = 3;
+    assert_err(train(&data, &odd, &out, &mut |_| ()), "multiple of 2");
+    let mut channels = tiny_operator(1);
+    channels.model.in_channels = 7;
+    assert_err(train(&data, &channels, &out, &mut |_| ()), "input channels");
+    assert!(!out.join("config.json").exists());
 }

@@ -7,7 +7,8 @@ use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 
 use super::data::{RoomPlanes, padded_shape};
-use super::model::{ConvImpl, PlumeNet};
+use super::head::{self, FusedHead, RoomTerms};
+use super::model::{ConvImpl, PlumeNet, ROOM_CHANNELS};
 use super::saved::{LEGACY_MODEL_FORMAT, SavedModel};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
@@ -252,6 +253,59 @@ impl Surrogate {
             (room.mirrored(), flipped)
         });
         let weight = 1.0 / self.views() as f32;
+        // An operator network's room pass and room terms, once per view.
+        let head = if self.net.is_operator() {
+            Some(FusedHead::of(&self.net)?)
+        } else {
+            None
+        };
+        let pass = |room: &RoomPlanes| -> Result<Option<(Vec<f32>, RoomTerms)>> {
+            let Some(head) = &head else {
+                return Ok(None);
+            };
+            let mut input = vec![0.0f32; ROOM_CHANNELS * grid[0] * grid[1]];
+            room.encode_room(&norm, (grid[0], grid[1]), &mut input)?;
+            let x = Tensor::<4>::from_data(
+                TensorData::new(input, [1, ROOM_CHANNELS, grid[0], grid[1]]),
+                &self.device,
+            );
+            let planes = self
+                .net
+                .room_planes(x, imp)
+                .into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))?;
+            let terms = head.room_terms(&planes, grid);
+            Ok(Some((planes, terms)))
+        };
+        let direct_pass = pass(&room)?;
+        let mirror_pass = match &mirror {
+            Some((mroom, _)) => pass(mroom)?,
+            None => None,
+        };
+        // Transformed outputs `[n, H', W'']` with their grid `[H', W'']`.
+        let raw = |room: &RoomPlanes,
+                   pass: &Option<(Vec<f32>, RoomTerms)>,
+                   sources: &[[f64; 2]]|
+         -> Result<(Vec<f32>, [usize; 2])> {
+            match (pass, &head) {
+                (Some((planes, terms)), Some(head)) => Ok((
+                    head::source_fields(
+                        room,
+                        terms,
+                        sources,
+                        &head.coefficients(room, planes, grid, sources),
+                        &head.weights,
+                        &norm,
+                    ),
+                    terms.grid,
+                )),
+                _ => Ok((
+                    self.forward_raw_with(self.encode(room, sources, grid)?, grid, imp)?,
+                    grid,
+                )),
+            }
+        };
         let mut out = Array3::<f32>::zeros((sources.len(), h, w));
         for (k, mut fields) in out
             .axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK)
@@ -259,17 +313,9 @@ impl Surrogate {
         {
             let chunk = k * BANK_CHUNK..k * BANK_CHUNK + fields.dim().0;
             // Canonical padded outputs `[n, 1, H', W']`, turned back cell by cell.
-            let direct = self.forward_raw_with(
-                self.encode(&room, &canonical[chunk.clone()], grid)?,
-                grid,
-                imp,
-            )?;
+            let (direct, [gh, gw]) = raw(&room, &direct_pass, &canonical[chunk.clone()])?;
             let mirrored = match &mirror {
-                Some((mroom, msources)) => Some(self.forward_raw_with(
-                    self.encode(mroom, &msources[chunk], grid)?,
-                    grid,
-                    imp,
-                )?),
+                Some((mroom, msources)) => Some(raw(mroom, &mirror_pass, &msources[chunk])?.0),
                 None => None,
             };
             for ((n, j, i), slot) in fields.indexed_iter_mut() {
@@ -277,7 +323,7 @@ impl Surrogate {
                     continue;
                 }
                 let (jc, ic) = frame.cell_to_canonical(j, i);
-                let at = |row: usize| (n * grid[0] + row) * grid[1] + ic;
+                let at = |row: usize| (n * gh + row) * gw + ic;
                 let mut c = norm.inverse(direct[at(jc)], speed);
                 if let Some(values) = &mirrored {
                     c += norm.inverse(values[at(rows - 1 - jc)], speed);

@@ -10,6 +10,7 @@ pub mod config;
 pub mod conv;
 pub mod data;
 pub mod eval;
+pub mod head;
 pub mod inference;
 pub mod model;
 pub mod saved;

@@ -37,6 +37,83 @@ pub struct PlumeNetConfig {
     /// decoder's channels, so the network learns a correction to it (a residual). `None` (as in
     /// models saved before it existed) means no.
     pub prior_skip: Option<bool>,
+    /// Make the network an operator network ([`OperatorConfig`]): the U-Net sees the room alone,
+    /// once, and the source enters in a light per-source head. `None` (as in models saved
+    /// before it existed) means the U-Net sees room and source together, one pass per source.
+    pub operator: Option<OperatorConfig>,
+}
+
+/// The source-late form of PlumeNet: everything that does not depend on the source (walls,
+/// obstacles, wind) is computed once per room, so a bank costs one U-Net pass per room and a
+/// few multiply-adds per cell and candidate.
+///
+/// The U-Net's head gives `2 K + E` planes for the room (`K = groups * group_size`): trunk
+/// planes `T(x)`, branch planes `A` read at the source (bilinearly, `a(s) = A(s)`), and `E`
+/// room planes `R(x)`. For a source `s` each group `j` gives one plane
+/// `z_j(x) = sum_g a_jg(s) T_jg(x)` (a learned low-rank Green's function); the head, two 1x1
+/// convolutions with ReLU between them, maps `[z, R, prior, tanh(dx / 2 m), tanh(dy / 2 m)]`
+/// at every cell to the transformed concentration, added to the analytic prior.
+#[derive(Config, Debug, PartialEq)]
+pub struct OperatorConfig {
+    /// Groups `J` of the bilinear form (planes `z_j` per source).
+    #[config(default = 16)]
+    pub groups: usize,
+    /// Terms `G` per group.
+    #[config(default = 8)]
+    pub group_size: usize,
+    /// Room planes `E` handed to the per-source head.
+    #[config(default = 8)]
+    pub room_planes: usize,
+    /// Hidden channels of the per-source head.
+    #[config(default = 16)]
+    pub hidden: usize,
+}
+
+/// Channels of the per-source planes an operator network's head reads beside the room's: the
+/// analytic prior and the source offset `tanh(dx / 2 m)`, `tanh(dy / 2 m)`.
+pub const SOURCE_PLANES: usize = 3;
+
+/// Added to each room plane's mean square before it is normalised ([`PlumeNet::room_planes`]).
+const PLANE_EPS: f32 = 1e-6;
+
+/// Room input channels of an operator network: mask, signed distance, Peclet number, `u / U`,
+/// `v / U` ([`crate::surrogate::data::RoomPlanes::encode_room`]).
+pub const ROOM_CHANNELS: usize = 5;
+
+impl OperatorConfig {
+    /// Bilinear terms `K = groups * group_size`.
+    pub fn terms(&self) -> usize {
+        self.groups * self.group_size
+    }
+
+    /// Planes the U-Net's head gives: trunk and branch planes and the room planes.
+    pub fn room_outputs(&self) -> usize {
+        2 * self.terms() + self.room_planes
+    }
+
+    /// Input channels of the per-source head.
+    fn head_inputs(&self) -> usize {
+        self.groups + self.room_planes + SOURCE_PLANES
+    }
+}
+
+/// The per-source head of an operator network ([`OperatorConfig`]).
+#[derive(Module, Debug)]
+pub struct SourceHead {
+    pub(super) mix: Conv2d,
+    pub(super) out: Conv2d,
+    pub(super) groups: usize,
+    pub(super) group_size: usize,
+}
+
+/// Where an operator network reads each source's branch planes: for source `n`, four flat
+/// indices into the room batch's `[B H W]` cells and their bilinear weights.
+#[derive(Debug, Clone)]
+pub struct SourceTaps {
+    /// `[4 S]` flat cell indices (corner `c` of source `n` at `c S + n`).
+    pub cells: Tensor<1, Int>,
+    /// `[4 S, 1]` bilinear weights, in the same order.
+    pub weights: Tensor<2>,
 }
 
 /// Which implementation runs PlumeNet's convolutions.
@@ -110,6 +187,7 @@ pub struct PlumeNet {
     pub(super) decoders: Vec<ConvBlock>,
     pub(super) head: Conv2d,
     prior_skip: bool,
+    pub(super) operator: Option<SourceHead>,
 }
 
 impl PlumeNetConfig {
@@ -134,6 +212,10 @@ impl PlumeNetConfig {
             block.convs.iter_mut().for_each(&mut draw_conv);
         }
         draw_conv(&mut net.head);
+        if let Some(op) = net.operator.as_mut() {
+            draw_conv(&mut op.mix);
+            draw_conv(&mut op.out);
+        }
         for up in net.ups.iter_mut() {
             let [cin, cout, kh, kw] = up.weight.dims();
             let fan_in = cout * kh * kw;
@@ -186,10 +268,31 @@ impl PlumeNetConfig {
             pool: MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init(),
             ups,
             decoders,
-            head: Conv2dConfig::new([f[0] + usize::from(self.skips_prior()), 1], [1, 1])
-                .with_initializer(Initializer::Zeros)
-                .init(device),
+            head: Conv2dConfig::new(
+                [
+                    f[0] + usize::from(self.skips_prior()),
+                    self.operator
+                        .as_ref()
+                        .map_or(1, OperatorConfig::room_outputs),
+                ],
+                [1, 1],
+            )
+            .with_initializer(Initializer::Zeros)
+            .init(device),
             prior_skip: self.skips_prior(),
+            operator: self.operator.as_ref().map(|op| {
+                let conv = |cin, cout| {
+                    Conv2dConfig::new([cin, cout], [1, 1])
+                        .with_initializer(Initializer::Zeros)
+                        .init(device)
+                };
+                SourceHead {
+                    mix: conv(op.head_inputs(), op.hidden),
+                    out: conv(op.hidden, 1),
+                    groups: op.groups,
+                    group_size: op.group_size,
+                }
+            }),
         }
     }
 }
@@ -203,12 +306,24 @@ impl PlumeNet {
     /// [`PlumeNet::forward`] with the convolutions run by `imp`.
     pub fn forward_with(&self, input: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
         let [b, _, h, w] = input.dims();
+        let out = self.unet(input, imp);
+        let [_, c, hp, wp] = out.dims();
+        if hp != h || wp != w {
+            out.slice([0..b, 0..c, 0..h, 0..w])
+        } else {
+            out
+        }
+    }
+
+    /// The U-Net on inputs padded to whole pooling steps: `[B, outputs, H', W']` with `H'`, `W'`
+    /// the padded sides.
+    fn unet(&self, input: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
+        let [b, channels, h, w] = input.dims();
         let multiple = 1 << (self.encoders.len() - 1);
         let (ph, pw) = (
             h.div_ceil(multiple) * multiple - h,
             w.div_ceil(multiple) * multiple - w,
         );
-        let [_, channels, _, _] = input.dims();
         let mut x = if ph + pw > 0 {
             input.pad((0, pw, 0, ph), 0.0)
         } else {
@@ -234,11 +349,80 @@ impl PlumeNet {
         if let Some(prior) = prior {
             x = Tensor::cat(vec![x, prior], 1);
         }
-        let out = same_conv(&self.head, x, false, imp);
-        if ph + pw > 0 {
-            out.slice([0..b, 0..1, 0..h, 0..w])
-        } else {
-            out
-        }
+        same_conv(&self.head, x, false, imp)
+    }
+
+    /// Whether this is an operator network ([`OperatorConfig`]).
+    pub fn is_operator(&self) -> bool {
+        self.operator.is_some()
+    }
+
+    /// An operator network's room pass: `[B, ROOM_CHANNELS, H, W]` room inputs (sides whole
+    /// pooling steps) to the room planes `[B, 2 K + E, H, W]` that
+    /// [`PlumeNet::source_fields`] reads.
+    pub fn room_planes(&self, rooms: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
+        // Each plane is divided by its root mean square over the grid, so that the bilinear
+        // form starts at unit scale however deep the U-Net (its raw outputs start near zero,
+        // and a product of two near-zero factors would barely learn).
+        let planes = self.unet(rooms, imp);
+        let rms = planes
+            .clone()
+            .powi_scalar(2)
+            .mean_dim(3)
+            .mean_dim(2)
+            .add_scalar(PLANE_EPS)
+            .sqrt();
+        planes.div(rms)
+    }
+
+    /// An operator network's fields of `M` sources in each of the `B` rooms of `planes`
+    /// ([`PlumeNet::room_planes`]): `taps` reads each source's branch planes, `sources` holds
+    /// the `[B M, SOURCE_PLANES, H, W]` per-source planes (room-major). Returns the transformed
+    /// concentration `[B M, 1, H, W]`.
+    ///
+    /// # Panics
+    /// When the network is not an operator network, or the shapes disagree.
+    pub fn source_fields(
+        &self,
+        planes: Tensor<4>,
+        taps: &SourceTaps,
+        sources: Tensor<4>,
+        imp: ConvImpl,
+    ) -> Tensor<4> {
+        let op = self.operator.as_ref().expect("an operator network");
+        let [b, outputs, h, w] = planes.dims();
+        let [bm, _, _, _] = sources.dims();
+        let m = bm / b;
+        let (j, g) = (op.groups, op.group_size);
+        let k = j * g;
+        let cells = h * w;
+        let trunk = planes
+            .clone()
+            .slice([0..b, 0..k, 0..h, 0..w])
+            .reshape([b, j, g, cells]);
+        // Branch planes as rows of cells: [B H W, K].
+        let branch = planes
+            .clone()
+            .slice([0..b, k..2 * k, 0..h, 0..w])
+            .permute([0, 2, 3, 1])
+            .reshape([b * cells, k]);
+        let taps4 = branch
+            .select(0, taps.cells.clone())
+            .mul(taps.weights.clone());
+        let a = taps4.reshape([4, bm, k]).sum_dim(0).reshape([b, m, j, g]);
+        let z = a
+            .swap_dims(1, 2)
+            .matmul(trunk)
+            .swap_dims(1, 2)
+            .reshape([bm, j, h, w]);
+        let room = planes
+            .slice([0..b, 2 * k..outputs, 0..h, 0..w])
+            .unsqueeze_dim::<5>(1)
+            .expand([b, m, outputs - 2 * k, h, w])
+            .reshape([bm, outputs - 2 * k, h, w]);
+        let prior = sources.clone().slice([0..bm, 0..1, 0..h, 0..w]);
+        let x = Tensor::cat(vec![z, room, sources], 1);
+        let hidden = same_conv(&op.mix, x, true, imp);
+        same_conv(&op.out, hidden, false, imp).add(prior)
     }
 }

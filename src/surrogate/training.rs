@@ -17,9 +17,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
-use super::data::{TrainingData, size_class};
+use super::data::{InputSet, RoomBatch, RoomSamples, TrainingData, size_class};
 use super::inference::Surrogate;
-use super::model::PlumeNet;
+use super::model::{ConvImpl, PlumeNet, ROOM_CHANNELS};
 use super::saved::{SavedModel, load_weights, weights_bytes};
 use crate::error::{Error, Result};
 use crate::io;
@@ -58,13 +58,31 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
     {
         return bad("filters must be non-empty and positive, and the kernel size odd");
     }
-    if config.model.in_channels != config.inputs.channels() {
+    let expected = if config.model.operator.is_some() {
+        ROOM_CHANNELS
+    } else {
+        config.inputs.channels()
+    };
+    if config.model.in_channels != expected {
         return Err(Error::Parameter(format!(
-            "the network takes {} input channels but the {:?} inputs have {}",
-            config.model.in_channels,
-            config.inputs,
-            config.inputs.channels()
+            "the network takes {} input channels but the {:?} inputs have {expected}",
+            config.model.in_channels, config.inputs,
         )));
+    }
+    if let Some(op) = &config.model.operator {
+        if config.inputs != InputSet::Analytic || config.model.skips_prior() {
+            return bad("an operator network takes the analytic inputs, without the prior skip");
+        }
+        if op.groups == 0 || op.group_size == 0 || op.hidden == 0 {
+            return bad("an operator network needs at least one group, term and hidden channel");
+        }
+        let step = 1 << (config.model.filters.len() - 1);
+        if config.pad_cells % step != 0 {
+            return Err(Error::Parameter(format!(
+                "an operator network pads rooms to whole pooling steps: pad_cells must be a \
+                 multiple of {step}"
+            )));
+        }
     }
     if config.model.skips_prior() && !config.inputs.has_prior() {
         return bad("the prior skip needs the analytic inputs (analytic or walled)");
@@ -124,23 +142,80 @@ pub fn relative_l2_per_map(pred: Tensor<4>, y: Tensor<4>, free: Tensor<4>) -> Re
     Ok(squared.into_iter().map(|v| f64::from(v).sqrt()).collect())
 }
 
-/// [`TrainingData::batch`] with the run's inputs, encoding, normalisation and padding.
-fn batch(
+/// A batch as the network takes it: maps of room and source together, or rooms with their
+/// sources for an operator network.
+enum Inputs {
+    Maps(Box<Tensor<4>>),
+    Rooms(Box<RoomBatch>),
+}
+
+/// The transformed concentration `[n, 1, H, W]` the network predicts for a batch.
+fn predict(model: &PlumeNet, inputs: Inputs) -> Tensor<4> {
+    match inputs {
+        Inputs::Maps(x) => model.forward(*x),
+        Inputs::Rooms(batch) => model.source_fields(
+            model.room_planes(batch.rooms, ConvImpl::Own),
+            &batch.taps,
+            batch.sources,
+            ConvImpl::Own,
+        ),
+    }
+}
+
+/// The batching units of `samples`, grouped into buckets of one padded grid: single samples,
+/// or for an operator network the samples of one room (grouped by source count too).
+fn unit_buckets(
     data: &TrainingData,
     samples: &[usize],
+    config: &TrainingConfig,
+) -> Vec<Vec<Vec<usize>>> {
+    if config.model.operator.is_some() {
+        data.room_buckets(&data.rooms_of(samples), config.pad_cells)
+    } else {
+        data.buckets(samples, config.pad_cells)
+            .into_iter()
+            .map(|bucket| bucket.into_iter().map(|s| vec![s]).collect())
+            .collect()
+    }
+}
+
+/// Units per batch in a bucket of `units`: `batch_size` maps, as whole rooms for an operator
+/// network (at least one).
+fn units_per_batch(units: &[Vec<usize>], batch_size: usize) -> usize {
+    let maps = units.first().map_or(1, Vec::len).max(1);
+    (batch_size / maps).max(1)
+}
+
+/// The batch of `units` with the run's inputs, encoding, normalisation and padding, and its
+/// target and weight tensors; `mirror` flags each unit.
+fn batch(
+    data: &TrainingData,
+    units: &[Vec<usize>],
     mirror: Option<&[bool]>,
     config: &TrainingConfig,
     device: &Device,
-) -> Result<(Tensor<4>, Tensor<4>, Tensor<4>)> {
-    data.batch(
-        samples,
+) -> Result<(Inputs, Tensor<4>, Tensor<4>)> {
+    if config.model.operator.is_some() {
+        let (rooms, y, free) = data.room_batch(
+            units,
+            mirror,
+            &config.normalization,
+            config.pad_cells,
+            device,
+        )?;
+        return Ok((Inputs::Rooms(Box::new(rooms)), y, free));
+    }
+    let samples: Vec<usize> = units.iter().flatten().copied().collect();
+    let (x, y, free) = data.batch(
+        &samples,
         mirror,
         config.inputs,
         config.encoding,
         &config.normalization,
         config.pad_cells,
         device,
-    )
+    )?;
+    Ok((Inputs::Maps(Box::new(x)), y, free))
 }
 
 /// Summed loss of `model` over `samples` (no gradients), in batches of one padded grid, and
@@ -153,13 +228,15 @@ fn scores(
     device: &Device,
 ) -> Result<(f64, Vec<f64>)> {
     let (mut sum, mut relative) = (0.0, Vec::with_capacity(samples.len()));
-    for bucket in data.buckets(samples, config.pad_cells) {
-        for chunk in bucket.chunks(config.batch_size.max(1) * 2) {
+    for bucket in unit_buckets(data, samples, config) {
+        let per_batch = units_per_batch(&bucket, config.batch_size.max(1) * 2);
+        for chunk in bucket.chunks(per_batch) {
+            let maps: usize = chunk.iter().map(Vec::len).sum();
             let (x, y, free) = batch(data, chunk, None, config, device)?;
-            let pred = model.forward(x);
+            let pred = predict(model, x);
             relative.extend(relative_l2_per_map(pred.clone(), y.clone(), free.clone())?);
             let loss: f32 = loss(config, pred, y, free).into_scalar();
-            sum += f64::from(loss) * chunk.len() as f64;
+            sum += f64::from(loss) * maps as f64;
         }
     }
     Ok((sum, relative))
@@ -219,21 +296,25 @@ pub fn validate(
     Ok(out)
 }
 
-/// The batches of one epoch: `samples` shuffled, cut into batches of one padded grid, and the
-/// batches shuffled; with [`TrainingConfig::mirror`], each batch's mirror flags (all from
+/// The batches of one epoch: `samples` shuffled, cut into batches of one padded grid
+/// ([`unit_buckets`]: single samples, or whole rooms for an operator network), and the batches
+/// shuffled; with [`TrainingConfig::mirror`], each batch's mirror flags, one per unit (all from
 /// `rng`, the flags drawn last so that runs without mirroring shuffle as before).
 fn epoch_batches(
     data: &TrainingData,
     samples: &[usize],
     config: &TrainingConfig,
     rng: &mut ChaCha8Rng,
-) -> Vec<(Vec<usize>, Option<Vec<bool>>)> {
+) -> Vec<(Vec<RoomSamples>, Option<Vec<bool>>)> {
     let mut order = samples.to_vec();
     order.shuffle(rng);
-    let mut batches: Vec<Vec<usize>> = data
-        .buckets(&order, config.pad_cells)
+    let mut batches: Vec<Vec<Vec<usize>>> = unit_buckets(data, &order, config)
         .iter()
-        .flat_map(|bucket| bucket.chunks(config.batch_size).map(<[usize]>::to_vec))
+        .flat_map(|bucket| {
+            bucket
+                .chunks(units_per_batch(bucket, config.batch_size))
+                .map(<[Vec<usize>]>::to_vec)
+        })
         .collect();
     batches.shuffle(rng);
     batches
@@ -357,14 +438,14 @@ pub fn train(
         let mut sum = 0.0;
         for (b, (chunk, flags)) in batches.iter().enumerate() {
             let (x, y, free) = batch(data, chunk, flags.as_deref(), config, &device)?;
-            let loss = loss(config, model.forward(x), y, free);
+            let loss = loss(config, predict(&model, x), y, free);
             let value = f64::from(loss.clone().into_scalar::<f32>());
             let grads = GradientsParams::from_grads(loss.backward(), &model);
             let progress_in_run =
                 ((epoch - 1) as f64 + b as f64 / batches.len() as f64) / config.epochs as f64;
             let rate = config.schedule.rate(config.learning_rate, progress_in_run);
             model = optim.step(rate, model, grads);
-            sum += value * chunk.len() as f64;
+            sum += value * chunk.iter().map(Vec::len).sum::<usize>() as f64;
             progress(TrainEvent::Batch(value));
         }
         let valid = model.valid();

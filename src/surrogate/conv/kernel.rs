@@ -213,7 +213,7 @@ impl Isa {
     }
 
     /// Runs `op` compiled for this instruction set (portable code if the CPU lacks it).
-    fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
+    pub(crate) fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
         #[cfg(target_arch = "x86_64")]
         match self {
             Isa::Avx512 => {
@@ -237,7 +237,7 @@ impl Isa {
 /// # Safety
 /// `ptr .. ptr + S::F32_LANES` must be readable.
 #[inline(always)]
-unsafe fn load<S: Simd>(ptr: *const f32) -> S::f32s {
+pub(crate) unsafe fn load<S: Simd>(ptr: *const f32) -> S::f32s {
     // SAFETY: the caller guarantees the range; `f32s` is plain old data.
     unsafe { ptr.cast::<S::f32s>().read_unaligned() }
 }
@@ -247,7 +247,7 @@ unsafe fn load<S: Simd>(ptr: *const f32) -> S::f32s {
 /// # Safety
 /// `ptr .. ptr + S::F32_LANES` must be writable.
 #[inline(always)]
-unsafe fn store<S: Simd>(ptr: *mut f32, value: S::f32s) {
+pub(crate) unsafe fn store<S: Simd>(ptr: *mut f32, value: S::f32s) {
     // SAFETY: the caller guarantees the range.
     unsafe { ptr.cast::<S::f32s>().write_unaligned(value) }
 }

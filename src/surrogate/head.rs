@@ -1,0 +1,407 @@
+//! An operator network's per-source head ([`super::model::OperatorConfig`]) fused for
+//! inference on the CPU.
+//!
+//! Training runs the head as Burn tensors ([`super::model::PlumeNet::source_fields`]); a bank
+//! runs it here, where nothing of size "sources x cells x channels" is ever stored. For each
+//! source and each tile of `TILE` cells of a row, the `J` bilinear planes `z_j`, the hidden
+//! units and the output stay in registers: `J G` multiply-adds for `z`, `H (J + 3)` for the
+//! hidden layer (the room planes' share of it, `W_r R + b`, is the same for every source and
+//! computed once per room) and `H` for the output, about 450 per cell with the default sizes.
+//! The per-source planes come from tables: the analytic prior depends only on the offset from
+//! the source (uniform wind), so it is tabulated once per sub-cell position of the sources
+//! (every candidate of a bank shares one) and each source reads a window of the table.
+//!
+//! Work is split over sources, each task writing its own outputs, so results do not depend on
+//! the thread count; the instruction set is chosen at run time as for the convolutions.
+
+use std::collections::BTreeMap;
+
+use pulp::{Simd, WithSimd};
+use rayon::prelude::*;
+
+use super::conv::kernel::{Isa, load, store};
+use super::data::{Normalization, RoomPlanes};
+use super::model::PlumeNet;
+use crate::error::{Error, Result};
+
+/// The padded grid's width is a multiple of this (the widest vector: 16 lanes of AVX-512), so
+/// that every row is whole vectors.
+const TILE: usize = 16;
+
+/// Sources per parallel task (they share the rows of the trunk planes in cache).
+const SOURCES_PER_TASK: usize = 8;
+
+/// The head's weights, read from the network ([`super::model::SourceHead`]).
+#[derive(Debug, Clone)]
+pub struct HeadWeights {
+    /// Groups `J`.
+    pub groups: usize,
+    /// Terms per group `G`.
+    pub group_size: usize,
+    /// Hidden units `H`.
+    pub hidden: usize,
+    /// `[H, J]` weights of the bilinear planes.
+    pub w_z: Vec<f32>,
+    /// `[H, 3]` weights of the per-source planes (prior, `tanh(dx / 2 m)`, `tanh(dy / 2 m)`).
+    pub w_s: Vec<f32>,
+    /// `[H]` output weights.
+    pub w_out: Vec<f32>,
+    /// Output bias.
+    pub b_out: f32,
+}
+
+/// What a room gives every source, on the padded grid the network ran on widened to whole
+/// tiles, `[H', W']` (`W'` a multiple of [`TILE`]): the trunk planes `[K, H', W']` and the
+/// hidden layer's room share `W_r R + b` as `[H, H', W']`.
+#[derive(Debug, Clone)]
+pub struct RoomTerms {
+    /// `[K, H', W']` normalised trunk planes.
+    pub trunk: Vec<f32>,
+    /// `[H, H', W']`.
+    pub room: Vec<f32>,
+    /// The grid `[H', W']`.
+    pub grid: [usize; 2],
+}
+
+impl RoomTerms {
+    /// Cells of one plane.
+    fn plane(&self) -> usize {
+        self.grid[0] * self.grid[1]
+    }
+}
+
+/// The per-source planes of sources at one sub-cell position, for a room of `h` rows and a
+/// padded grid `W'` columns wide: for row offsets `dj = j - js` in `[-(h - 1), h - 1]` and
+/// column offsets `di = i - is` in `[-(W' - 1), W' - 1]`, the transformed analytic prior
+/// (row-major, `2 W' - 1` wide), `tanh(dx / 2 m)` by `di` and `tanh(dy / 2 m)` by `dj`.
+#[derive(Debug, Clone)]
+struct SourceTable {
+    prior: Vec<f32>,
+    dx: Vec<f32>,
+    dy: Vec<f32>,
+}
+
+/// One source as the kernel reads it: its bilinear coefficients `a(s)` (`[K]`), its cell
+/// `(js, is)` and its table.
+struct Source<'a> {
+    coefficients: &'a [f32],
+    cell: (usize, usize),
+    table: &'a SourceTable,
+}
+
+/// The transformed concentration `[n, H', W']` of `n` canonical `sources` in `room` on the
+/// grid of `terms` (computed in the room's `h` rows, every column; the cells past the room's
+/// are to be ignored),
+/// given the room's terms, each source's coefficients `a(s)` (`[n, K]`) and the head's
+/// weights.
+///
+/// # Panics
+/// When `terms.grid[1]` is not a multiple of [`TILE`] or `coefficients` is not `[n, K]`.
+pub fn source_fields(
+    room: &RoomPlanes,
+    terms: &RoomTerms,
+    sources: &[[f64; 2]],
+    coefficients: &[f32],
+    weights: &HeadWeights,
+    norm: &Normalization,
+) -> Vec<f32> {
+    let (h, w) = room.shape();
+    let wp = terms.grid[1];
+    assert!(
+        wp % TILE == 0 && wp >= w && terms.grid[0] >= h,
+        "a padded grid of whole tiles"
+    );
+    let k = weights.groups * weights.group_size;
+    assert_eq!(
+        coefficients.len(),
+        sources.len() * k,
+        "K coefficients per source"
+    );
+    let cell = room.cell_m;
+    // One table per sub-cell position, keyed by its exact bits.
+    let mut tables: BTreeMap<(u64, u64), SourceTable> = BTreeMap::new();
+    let placed: Vec<((usize, usize), (u64, u64))> = sources
+        .iter()
+        .map(|&[sx, sy]| {
+            let (u, v) = (sx / cell, sy / cell);
+            let (is, js) = (
+                u.floor().clamp(0.0, (w - 1) as f64),
+                v.floor().clamp(0.0, (h - 1) as f64),
+            );
+            let (fx, fy) = (u - is, v - js);
+            let key = (fx.to_bits(), fy.to_bits());
+            tables
+                .entry(key)
+                .or_insert_with(|| table(room, (h, wp), (fx, fy), norm));
+            ((js as usize, is as usize), key)
+        })
+        .collect();
+    let plane = terms.plane();
+    let mut out = vec![0.0f32; sources.len() * plane];
+    out.par_chunks_mut(SOURCES_PER_TASK * plane)
+        .enumerate()
+        .for_each(|(t, block)| {
+            let first = t * SOURCES_PER_TASK;
+            let batch: Vec<Source> = (first..first + block.len() / plane)
+                .map(|n| Source {
+                    coefficients: &coefficients[n * k..(n + 1) * k],
+                    cell: placed[n].0,
+                    table: &tables[&placed[n].1],
+                })
+                .collect();
+            Isa::best().run(Task {
+                rows: h,
+                terms,
+                weights,
+                sources: &batch,
+                out: block,
+            });
+        });
+    out
+}
+
+/// The table of sources at sub-cell position `(fx, fy)` (fractions of a cell) in `room`, for
+/// `h` rows and `w` columns of the padded grid.
+fn table(
+    room: &RoomPlanes,
+    (h, w): (usize, usize),
+    (fx, fy): (f64, f64),
+    norm: &Normalization,
+) -> SourceTable {
+    let cell = room.cell_m;
+    let offset = |d: isize, f: f64| (d as f64 + 0.5 - f) * cell;
+    let (tw, th) = (2 * w - 1, 2 * h - 1);
+    let mut prior = vec![0.0f32; tw * th];
+    prior.par_chunks_mut(tw).enumerate().for_each(|(r, row)| {
+        let dy = offset(r as isize - (h as isize - 1), fy);
+        for (c, slot) in row.iter_mut().enumerate() {
+            let dx = offset(c as isize - (w as isize - 1), fx);
+            *slot = norm.forward(room.unbounded_prior(dx, dy) as f32, room.speed_mps);
+        }
+    });
+    let tanh = |d: f64| (d / super::data::OFFSET_SCALE_M).tanh() as f32;
+    SourceTable {
+        prior,
+        dx: (0..tw)
+            .map(|c| tanh(offset(c as isize - (w as isize - 1), fx)))
+            .collect(),
+        dy: (0..th)
+            .map(|r| tanh(offset(r as isize - (h as isize - 1), fy)))
+            .collect(),
+    }
+}
+
+/// A block of sources: every row, every tile.
+struct Task<'a> {
+    rows: usize,
+    terms: &'a RoomTerms,
+    weights: &'a HeadWeights,
+    sources: &'a [Source<'a>],
+    out: &'a mut [f32],
+}
+
+impl WithSimd for Task<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let Task {
+            rows,
+            terms,
+            weights,
+            sources,
+            out,
+        } = self;
+        let [_, w] = terms.grid;
+        let plane = terms.plane();
+        let lanes = S::F32_LANES;
+        let (j_groups, g_size, hidden) = (weights.groups, weights.group_size, weights.hidden);
+        let tw = 2 * w - 1;
+        // A vector of `lanes` values of `v` from `at` on.
+        let load = |v: &[f32], at: usize| {
+            let part = &v[at..at + lanes];
+            // SAFETY: `part` holds `lanes` readable values.
+            unsafe { load::<S>(part.as_ptr()) }
+        };
+        let zero = simd.splat_f32s(0.0);
+        let mut z = vec![zero; j_groups];
+        for row in 0..rows {
+            for (n, source) in sources.iter().enumerate() {
+                let (js, is) = source.cell;
+                let table = source.table;
+                let prior_row = &table.prior[(row + rows - 1 - js) * tw..][..tw];
+                let dy = table.dy[row + rows - 1 - js];
+                for col in (0..w).step_by(lanes) {
+                    let at = row * w + col;
+                    // z_j = sum_g a_jg T_jg over the tile.
+                    for (j, zj) in z.iter_mut().enumerate() {
+                        let mut acc = zero;
+                        for g in 0..g_size {
+                            let kk = j * g_size + g;
+                            let a = simd.splat_f32s(source.coefficients[kk]);
+                            acc = simd.mul_add_f32s(a, load(&terms.trunk, kk * plane + at), acc);
+                        }
+                        *zj = acc;
+                    }
+                    let first = col + w - 1 - is;
+                    let prior = load(prior_row, first);
+                    let dx = load(&table.dx, first);
+                    let dy = simd.splat_f32s(dy);
+                    let mut y = simd.splat_f32s(weights.b_out);
+                    for u in 0..hidden {
+                        let ws = &weights.w_s[3 * u..3 * u + 3];
+                        let mut acc = load(&terms.room, u * plane + at);
+                        acc = simd.mul_add_f32s(simd.splat_f32s(ws[0]), prior, acc);
+                        acc = simd.mul_add_f32s(simd.splat_f32s(ws[1]), dx, acc);
+                        acc = simd.mul_add_f32s(simd.splat_f32s(ws[2]), dy, acc);
+                        let wz = &weights.w_z[u * j_groups..(u + 1) * j_groups];
+                        for (&wgt, &zj) in wz.iter().zip(&z) {
+                            acc = simd.mul_add_f32s(simd.splat_f32s(wgt), zj, acc);
+                        }
+                        y = simd.mul_add_f32s(
+                            simd.splat_f32s(weights.w_out[u]),
+                            simd.max_f32s(acc, zero),
+                            y,
+                        );
+                    }
+                    let dst = &mut out[n * plane + at..n * plane + at + lanes];
+                    // SAFETY: `dst` holds `lanes` writable values.
+                    unsafe { store::<S>(dst.as_mut_ptr(), simd.add_f32s(y, prior)) };
+                }
+            }
+        }
+    }
+}
+
+/// An operator network's head read out of its Burn module for [`source_fields`], with the
+/// weights that make the room terms.
+#[derive(Debug, Clone)]
+pub struct FusedHead {
+    /// The per-source weights.
+    pub weights: HeadWeights,
+    /// `[H, E]` weights of the room planes.
+    w_room: Vec<f32>,
+    /// `[H]` hidden biases.
+    b_hidden: Vec<f32>,
+}
+
+/// A parameter's values.
+fn values<const D: usize>(tensor: burn::prelude::Tensor<D>) -> Result<Vec<f32>> {
+    tensor
+        .into_data()
+        .try_to_vec::<f32>()
+        .map_err(|e| Error::Model(format!("cannot read a weight tensor: {e:?}")))
+}
+
+impl FusedHead {
+    /// The head of `net`.
+    ///
+    /// # Errors
+    /// [`Error::Model`] when `net` is not an operator network or a weight cannot be read.
+    pub fn of(net: &PlumeNet) -> Result<Self> {
+        let op = net
+            .operator
+            .as_ref()
+            .ok_or_else(|| Error::Model("not an operator network".into()))?;
+        let [hidden, inputs, _, _] = op.mix.weight.dims();
+        let (groups, group_size) = (op.groups, op.group_size);
+        let room_planes = inputs - groups - super::model::SOURCE_PLANES;
+        let mix = values(op.mix.weight.val())?;
+        let column = |u: usize, c: std::ops::Range<usize>| mix[u * inputs..][c].to_vec();
+        let bias = |conv: &burn::nn::conv::Conv2d, n: usize| -> Result<Vec<f32>> {
+            match &conv.bias {
+                Some(b) => values(b.val()),
+                None => Ok(vec![0.0; n]),
+            }
+        };
+        Ok(Self {
+            weights: HeadWeights {
+                groups,
+                group_size,
+                hidden,
+                w_z: (0..hidden).flat_map(|u| column(u, 0..groups)).collect(),
+                w_s: (0..hidden)
+                    .flat_map(|u| column(u, groups + room_planes..inputs))
+                    .collect(),
+                w_out: values(op.out.weight.val())?,
+                b_out: bias(&op.out, 1)?[0],
+            },
+            w_room: (0..hidden)
+                .flat_map(|u| column(u, groups..groups + room_planes))
+                .collect(),
+            b_hidden: bias(&op.mix, hidden)?,
+        })
+    }
+
+    /// Bilinear terms `K`.
+    fn terms(&self) -> usize {
+        self.weights.groups * self.weights.group_size
+    }
+
+    /// The room terms of one room's planes `[2 K + E, H', W']` ([`PlumeNet::room_planes`]),
+    /// on the grid widened with zeros to whole tiles ([`TILE`]).
+    pub fn room_terms(&self, planes: &[f32], [hp, wp]: [usize; 2]) -> RoomTerms {
+        let ws = wp.div_ceil(TILE) * TILE;
+        let (plane, wide) = (hp * wp, hp * ws);
+        let k = self.terms();
+        let e = self.w_room.len() / self.weights.hidden;
+        // Plane `c` of `planes` on the widened grid.
+        let widened = |c: usize, out: &mut [f32]| {
+            for (dst, src) in out
+                .chunks_mut(ws)
+                .zip(planes[c * plane..(c + 1) * plane].chunks(wp))
+            {
+                dst[..wp].copy_from_slice(src);
+            }
+        };
+        let mut trunk = vec![0.0f32; k * wide];
+        trunk
+            .par_chunks_mut(wide)
+            .enumerate()
+            .for_each(|(c, out)| widened(c, out));
+        let mut room = vec![0.0f32; self.weights.hidden * wide];
+        room.par_chunks_mut(wide).enumerate().for_each(|(u, out)| {
+            let mut plane_c = vec![0.0f32; wide];
+            for c in 0..e {
+                widened(2 * k + c, &mut plane_c);
+                let wgt = self.w_room[u * e + c];
+                for (o, &v) in out.iter_mut().zip(&plane_c) {
+                    *o += wgt * v;
+                }
+            }
+            for o in out.iter_mut() {
+                *o += self.b_hidden[u];
+            }
+        });
+        RoomTerms {
+            trunk,
+            room,
+            grid: [hp, ws],
+        }
+    }
+
+    /// The coefficients `a(s)` (`[n, K]`) of canonical `sources` in `room`: its branch planes
+    /// in `planes` read bilinearly at each source ([`RoomPlanes::taps`]).
+    pub fn coefficients(
+        &self,
+        room: &RoomPlanes,
+        planes: &[f32],
+        grid: [usize; 2],
+        sources: &[[f64; 2]],
+    ) -> Vec<f32> {
+        let plane = grid[0] * grid[1];
+        let k = self.terms();
+        let branch = &planes[k * plane..2 * k * plane];
+        sources
+            .iter()
+            .flat_map(|&source| {
+                let taps = room.taps(source, 0, (grid[0], grid[1]));
+                (0..k).map(move |kk| {
+                    taps.iter()
+                        .map(|&(cell, weight)| weight * branch[kk * plane + cell as usize])
+                        .sum::<f32>()
+                })
+            })
+            .collect()
+    }
+}
