@@ -314,6 +314,10 @@ struct BenchArgs {
     /// Skip the scipy SuperLU reference.
     #[arg(long)]
     no_reference: bool,
+    /// Also time this trained PlumeNet's bank of the same candidates (wind solve, input
+    /// encoding and inverse transform included) against the solver's.
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -552,6 +556,21 @@ fn run_bench(a: BenchArgs) -> Result<()> {
         "one_source_ms": ms(t.one_source_s), "bank_ms": ms(t.bank_s), "total_ms": ms(t.total_s()),
         "candidates": t.candidates, "unknowns": t.unknowns,
     });
+    if let Some(dir) = &a.model {
+        let model = Surrogate::load(dir)?;
+        let candidates = layout.candidates(a.spacing)?;
+        let bank = timing::time_model_bank(&model, &layout, &candidates, a.repeats)?;
+        println!(
+            "PlumeNet {} bank (wind, encoding, network, inverse transform): {:.2} ms = {:.2}x \
+             the solver's wind + factor + bank",
+            dir.display(),
+            ms(bank),
+            bank / t.total_s()
+        );
+        report["model"] = json!(dir.display().to_string());
+        report["model_bank_ms"] = json!(ms(bank));
+        report["model_over_solver"] = json!(bank / t.total_s());
+    }
     if !a.no_reference {
         // Removed when dropped, whichever way this block ends.
         let tmp = export_dir("plumenet-bench-")?;

@@ -1254,6 +1254,45 @@ fn the_dataset_and_model_commands_run_end_to_end() {
     let f = read_npy::<f32, Ix2>(&field).unwrap();
     assert_eq!(f.dim(), (12, 24));
     assert!(f.iter().all(|v| v.is_finite() && *v >= 0.0));
+
+    // The operator network trains, and `bench --model` times its bank beside the solver's.
+    plumenet_ok(&[
+        "train",
+        "--data",
+        &dir("merged"),
+        "--out",
+        &dir("operator"),
+        "--epochs",
+        "1",
+        "--filters",
+        "4,8",
+        "--batch-size",
+        "3",
+        "--operator",
+    ]);
+    let json = tmp.path().join("bench.json");
+    plumenet_ok(&[
+        "bench",
+        "--layout",
+        &room,
+        "--repeats",
+        "1",
+        "--no-reference",
+        "--model",
+        &dir("operator"),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let bench = read_json(&json);
+    let (model, solver) = (
+        bench["model_bank_ms"].as_f64().unwrap(),
+        bench["total_ms"].as_f64().unwrap(),
+    );
+    assert!(model > 0.0 && solver > 0.0, "{bench}");
+    assert!(
+        (bench["model_over_solver"].as_f64().unwrap() - model / solver).abs() < 1e-9,
+        "{bench}"
+    );
 }
 
 /// bench (without its Python reference) and bench-ste run to success on a small room and write

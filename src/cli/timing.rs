@@ -4,7 +4,8 @@
 //! transport operator, one source, and the whole candidate bank. [`export_system`] writes the
 //! same transport system for `scripts/superlu_bench.py` (scipy's SuperLU) so both are timed in
 //! one `plumenet bench` run. [`time_ste_update`] times one STE update per feature against the
-//! floor of reading the estimate matrix once (`plumenet bench-ste`).
+//! floor of reading the estimate matrix once (`plumenet bench-ste`). [`time_model_bank`] times
+//! a trained PlumeNet's bank of the same candidates (`plumenet bench --model`).
 
 use std::path::Path;
 use std::time::Instant;
@@ -19,6 +20,7 @@ use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::physics::transport::Transport;
 use plumenet::physics::wind::WindField;
+use plumenet::plume::PlumeModel;
 use plumenet::service::{RemoteSession, serve_tcp};
 use plumenet::sim::episode::Steering;
 use plumenet::stats::median;
@@ -99,6 +101,24 @@ pub fn time_bank(
         wind_steps: steps,
     };
     Ok((timings, transport, candidates))
+}
+
+/// Median seconds of `model`'s bank of `candidates` in `layout` over `repeats` runs: all it
+/// costs a new room (for PlumeNet: the wind solve, the input encoding, the network, the
+/// inverse transform).
+///
+/// # Errors
+/// As [`PlumeModel::bank`].
+pub fn time_model_bank(
+    model: &dyn PlumeModel,
+    layout: &Layout,
+    candidates: &[[f64; 2]],
+    repeats: usize,
+) -> Result<f64> {
+    let times = (0..repeats.max(1))
+        .map(|_| timed(|| model.bank(layout, candidates)).map(|(_, t)| t))
+        .collect::<Result<Vec<f64>>>()?;
+    Ok(median(&times))
 }
 
 /// Writes the transport matrix and the candidates' right-hand sides (COO `.npy` triplets) and

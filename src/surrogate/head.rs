@@ -51,13 +51,15 @@ pub struct HeadWeights {
 }
 
 /// What a room gives every source, on the padded grid the network ran on widened to whole
-/// tiles, `[H', W']` (`W'` a multiple of [`TILE`]): the trunk planes `[K, H', W']` and the
-/// hidden layer's room share `W_r R + b` as `[H, H', W']`.
+/// tiles, `[H', W']` (`W'` a multiple of [`TILE`]): the normalised trunk planes (`K`) and the
+/// hidden layer's room share `W_r R + b` (`H` planes), each packed tile by tile as
+/// `[H', W' / TILE, planes, TILE]`, so that a tile's values of every plane lie together (planes
+/// a power of two apart would all fall into one cache set).
 #[derive(Debug, Clone)]
 pub struct RoomTerms {
-    /// `[K, H', W']` normalised trunk planes.
+    /// Trunk planes, packed.
     pub trunk: Vec<f32>,
-    /// `[H, H', W']`.
+    /// Room share of the hidden layer, packed.
     pub room: Vec<f32>,
     /// The grid `[H', W']`.
     pub grid: [usize; 2],
@@ -89,26 +91,76 @@ struct Source<'a> {
     table: &'a SourceTable,
 }
 
-/// The transformed concentration `[n, H', W']` of `n` canonical `sources` in `room` on the
-/// grid of `terms` (computed in the room's `h` rows, every column; the cells past the room's
-/// are to be ignored),
-/// given the room's terms, each source's coefficients `a(s)` (`[n, K]`) and the head's
-/// weights.
+/// The per-source tables of a room's sources ([`SourceTable`], one per sub-cell position,
+/// keyed by the position's exact bits).
+#[derive(Debug, Clone)]
+pub struct SourceTables {
+    tables: BTreeMap<(u64, u64), SourceTable>,
+    /// Room cells `(h, w)`.
+    shape: (usize, usize),
+    cell_m: f64,
+}
+
+impl SourceTables {
+    /// The tables of canonical `sources` in `room`, on the grid of `terms`.
+    pub fn new(
+        room: &RoomPlanes,
+        terms: &RoomTerms,
+        sources: &[[f64; 2]],
+        norm: &Normalization,
+    ) -> Self {
+        let mut out = Self {
+            tables: BTreeMap::new(),
+            shape: room.shape(),
+            cell_m: room.cell_m,
+        };
+        for &source in sources {
+            let (_, key, fraction) = out.place(source);
+            if !out.tables.contains_key(&key) {
+                let t = table(room, (out.shape.0, terms.grid[1]), fraction, norm);
+                out.tables.insert(key, t);
+            }
+        }
+        out
+    }
+
+    /// A canonical source's cell `(js, is)`, the key of its sub-cell position and the position
+    /// `(fx, fy)` in fractions of a cell.
+    fn place(&self, [sx, sy]: [f64; 2]) -> ((usize, usize), (u64, u64), (f64, f64)) {
+        let (h, w) = self.shape;
+        let (u, v) = (sx / self.cell_m, sy / self.cell_m);
+        let (is, js) = (
+            u.floor().clamp(0.0, (w - 1) as f64),
+            v.floor().clamp(0.0, (h - 1) as f64),
+        );
+        let (fx, fy) = (u - is, v - js);
+        (
+            (js as usize, is as usize),
+            (fx.to_bits(), fy.to_bits()),
+            (fx, fy),
+        )
+    }
+}
+
+/// The transformed concentration `[n, H', W']` of `n` canonical `sources` on the grid of
+/// `terms` (computed in the room's `h` rows, every column; the cells past the room's are to
+/// be ignored), given the room's terms and tables, each source's coefficients `a(s)`
+/// (`[n, K]`) and the head's weights.
 ///
 /// # Panics
-/// When `terms.grid[1]` is not a multiple of [`TILE`] or `coefficients` is not `[n, K]`.
+/// When `terms.grid[1]` is not a multiple of [`TILE`], `coefficients` is not `[n, K]` or a
+/// source has no table.
 pub fn source_fields(
-    room: &RoomPlanes,
     terms: &RoomTerms,
+    tables: &SourceTables,
     sources: &[[f64; 2]],
     coefficients: &[f32],
     weights: &HeadWeights,
-    norm: &Normalization,
 ) -> Vec<f32> {
-    let (h, w) = room.shape();
-    let wp = terms.grid[1];
+    let (h, w) = tables.shape;
+    let [hp, wp] = terms.grid;
     assert!(
-        wp % TILE == 0 && wp >= w && terms.grid[0] >= h,
+        wp % TILE == 0 && wp >= w && hp >= h,
         "a padded grid of whole tiles"
     );
     let k = weights.groups * weights.group_size;
@@ -117,25 +169,11 @@ pub fn source_fields(
         sources.len() * k,
         "K coefficients per source"
     );
-    let cell = room.cell_m;
-    // One table per sub-cell position, keyed by its exact bits.
-    let mut tables: BTreeMap<(u64, u64), SourceTable> = BTreeMap::new();
-    let placed: Vec<((usize, usize), (u64, u64))> = sources
-        .iter()
-        .map(|&[sx, sy]| {
-            let (u, v) = (sx / cell, sy / cell);
-            let (is, js) = (
-                u.floor().clamp(0.0, (w - 1) as f64),
-                v.floor().clamp(0.0, (h - 1) as f64),
-            );
-            let (fx, fy) = (u - is, v - js);
-            let key = (fx.to_bits(), fy.to_bits());
-            tables
-                .entry(key)
-                .or_insert_with(|| table(room, (h, wp), (fx, fy), norm));
-            ((js as usize, is as usize), key)
-        })
-        .collect();
+    assert!(
+        terms.trunk.len() == k * terms.plane()
+            && terms.room.len() == weights.hidden * terms.plane(),
+        "room terms of this head"
+    );
     let plane = terms.plane();
     let mut out = vec![0.0f32; sources.len() * plane];
     out.par_chunks_mut(SOURCES_PER_TASK * plane)
@@ -143,10 +181,13 @@ pub fn source_fields(
         .for_each(|(t, block)| {
             let first = t * SOURCES_PER_TASK;
             let batch: Vec<Source> = (first..first + block.len() / plane)
-                .map(|n| Source {
-                    coefficients: &coefficients[n * k..(n + 1) * k],
-                    cell: placed[n].0,
-                    table: &tables[&placed[n].1],
+                .map(|n| {
+                    let (cell, key, _) = tables.place(sources[n]);
+                    Source {
+                        coefficients: &coefficients[n * k..(n + 1) * k],
+                        cell,
+                        table: &tables.tables[&key],
+                    }
                 })
                 .collect();
             Isa::best().run(Task {
@@ -218,39 +259,61 @@ impl WithSimd for Task<'_> {
         let (j_groups, g_size, hidden) = (weights.groups, weights.group_size, weights.hidden);
         let tw = 2 * w - 1;
         // A vector of `lanes` values of `v` from `at` on.
-        let load = |v: &[f32], at: usize| {
+        let vector = |v: &[f32], at: usize| {
             let part = &v[at..at + lanes];
             // SAFETY: `part` holds `lanes` readable values.
             unsafe { load::<S>(part.as_ptr()) }
         };
         let zero = simd.splat_f32s(0.0);
         let mut z = vec![zero; j_groups];
+        let k = j_groups * g_size;
+        let tiles = w / TILE;
         for row in 0..rows {
-            for (n, source) in sources.iter().enumerate() {
-                let (js, is) = source.cell;
-                let table = source.table;
-                let prior_row = &table.prior[(row + rows - 1 - js) * tw..][..tw];
-                let dy = table.dy[row + rows - 1 - js];
-                for col in (0..w).step_by(lanes) {
-                    let at = row * w + col;
+            for (t, sub) in (0..tiles).flat_map(|t| (0..TILE / lanes).map(move |v| (t, v))) {
+                let col = t * TILE + sub * lanes;
+                let at = row * w + col;
+                let block = row * tiles + t;
+                // SAFETY (every read below): `source_fields` checked that the trunk holds `k`
+                // packed planes and the room terms `hidden`, so tile `block`'s vector `sub` of
+                // each plane lies within them.
+                let trunk = |kk: usize| unsafe {
+                    load::<S>(
+                        terms
+                            .trunk
+                            .as_ptr()
+                            .add((block * k + kk) * TILE + sub * lanes),
+                    )
+                };
+                let room = |u: usize| unsafe {
+                    load::<S>(
+                        terms
+                            .room
+                            .as_ptr()
+                            .add((block * hidden + u) * TILE + sub * lanes),
+                    )
+                };
+                for (n, source) in sources.iter().enumerate() {
+                    let (js, is) = source.cell;
+                    let table = source.table;
+                    let trow = row + rows - 1 - js;
+                    let first = col + w - 1 - is;
+                    let prior = vector(&table.prior, trow * tw + first);
+                    let dx = vector(&table.dx, first);
+                    let dy = simd.splat_f32s(table.dy[trow]);
                     // z_j = sum_g a_jg T_jg over the tile.
+                    let a = &source.coefficients[..k];
                     for (j, zj) in z.iter_mut().enumerate() {
                         let mut acc = zero;
                         for g in 0..g_size {
                             let kk = j * g_size + g;
-                            let a = simd.splat_f32s(source.coefficients[kk]);
-                            acc = simd.mul_add_f32s(a, load(&terms.trunk, kk * plane + at), acc);
+                            acc = simd.mul_add_f32s(simd.splat_f32s(a[kk]), trunk(kk), acc);
                         }
                         *zj = acc;
                     }
-                    let first = col + w - 1 - is;
-                    let prior = load(prior_row, first);
-                    let dx = load(&table.dx, first);
-                    let dy = simd.splat_f32s(dy);
                     let mut y = simd.splat_f32s(weights.b_out);
                     for u in 0..hidden {
                         let ws = &weights.w_s[3 * u..3 * u + 3];
-                        let mut acc = load(&terms.room, u * plane + at);
+                        let mut acc = room(u);
                         acc = simd.mul_add_f32s(simd.splat_f32s(ws[0]), prior, acc);
                         acc = simd.mul_add_f32s(simd.splat_f32s(ws[1]), dx, acc);
                         acc = simd.mul_add_f32s(simd.splat_f32s(ws[2]), dy, acc);
@@ -339,43 +402,43 @@ impl FusedHead {
     }
 
     /// The room terms of one room's planes `[2 K + E, H', W']` ([`PlumeNet::room_planes`]),
-    /// on the grid widened with zeros to whole tiles ([`TILE`]).
+    /// on the grid widened with zeros to whole tiles ([`TILE`]), packed tile by tile.
     pub fn room_terms(&self, planes: &[f32], [hp, wp]: [usize; 2]) -> RoomTerms {
         let ws = wp.div_ceil(TILE) * TILE;
-        let (plane, wide) = (hp * wp, hp * ws);
+        let tiles = ws / TILE;
+        let plane = hp * wp;
         let k = self.terms();
-        let e = self.w_room.len() / self.weights.hidden;
-        // Plane `c` of `planes` on the widened grid.
-        let widened = |c: usize, out: &mut [f32]| {
-            for (dst, src) in out
-                .chunks_mut(ws)
-                .zip(planes[c * plane..(c + 1) * plane].chunks(wp))
-            {
-                dst[..wp].copy_from_slice(src);
+        let hidden = self.weights.hidden;
+        let e = self.w_room.len() / hidden;
+        // Plane `c` of `planes` at `(row, col)`, zero past the padded grid.
+        let value = |c: usize, row: usize, col: usize| {
+            if col < wp {
+                planes[c * plane + row * wp + col]
+            } else {
+                0.0
             }
         };
-        let mut trunk = vec![0.0f32; k * wide];
-        trunk
-            .par_chunks_mut(wide)
-            .enumerate()
-            .for_each(|(c, out)| widened(c, out));
-        let mut room = vec![0.0f32; self.weights.hidden * wide];
-        room.par_chunks_mut(wide).enumerate().for_each(|(u, out)| {
-            let mut plane_c = vec![0.0f32; wide];
-            for c in 0..e {
-                widened(2 * k + c, &mut plane_c);
-                let wgt = self.w_room[u * e + c];
-                for (o, &v) in out.iter_mut().zip(&plane_c) {
-                    *o += wgt * v;
-                }
-            }
-            for o in out.iter_mut() {
-                *o += self.b_hidden[u];
-            }
-        });
+        let pack = |channels: usize, f: &(dyn Fn(usize, usize, usize) -> f32 + Sync)| {
+            let mut out = vec![0.0f32; hp * tiles * channels * TILE];
+            out.par_chunks_mut(channels * TILE)
+                .enumerate()
+                .for_each(|(block, values)| {
+                    let (row, first) = (block / tiles, (block % tiles) * TILE);
+                    for (c, lane_values) in values.chunks_mut(TILE).enumerate() {
+                        for (l, v) in lane_values.iter_mut().enumerate() {
+                            *v = f(c, row, first + l);
+                        }
+                    }
+                });
+            out
+        };
         RoomTerms {
-            trunk,
-            room,
+            trunk: pack(k, &|c, row, col| value(c, row, col)),
+            room: pack(hidden, &|u, row, col| {
+                (0..e).fold(self.b_hidden[u], |acc, c| {
+                    acc + self.w_room[u * e + c] * value(2 * k + c, row, col)
+                })
+            }),
             grid: [hp, ws],
         }
     }

@@ -7,7 +7,7 @@ use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 
 use super::data::{RoomPlanes, padded_shape};
-use super::head::{self, FusedHead, RoomTerms};
+use super::head::{self, FusedHead, RoomTerms, SourceTables};
 use super::model::{ConvImpl, PlumeNet, ROOM_CHANNELS};
 use super::saved::{LEGACY_MODEL_FORMAT, SavedModel};
 use crate::error::{Error, Result};
@@ -259,7 +259,7 @@ impl Surrogate {
         } else {
             None
         };
-        let pass = |room: &RoomPlanes| -> Result<Option<(Vec<f32>, RoomTerms)>> {
+        let pass = |room: &RoomPlanes, sources: &[[f64; 2]]| -> Result<Option<RoomPass>> {
             let Some(head) = &head else {
                 return Ok(None);
             };
@@ -276,29 +276,33 @@ impl Surrogate {
                 .try_to_vec::<f32>()
                 .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))?;
             let terms = head.room_terms(&planes, grid);
-            Ok(Some((planes, terms)))
+            let tables = SourceTables::new(room, &terms, sources, &norm);
+            Ok(Some(RoomPass {
+                planes,
+                terms,
+                tables,
+            }))
         };
-        let direct_pass = pass(&room)?;
+        let direct_pass = pass(&room, &canonical)?;
         let mirror_pass = match &mirror {
-            Some((mroom, _)) => pass(mroom)?,
+            Some((mroom, msources)) => pass(mroom, msources)?,
             None => None,
         };
         // Transformed outputs `[n, H', W'']` with their grid `[H', W'']`.
         let raw = |room: &RoomPlanes,
-                   pass: &Option<(Vec<f32>, RoomTerms)>,
+                   pass: &Option<RoomPass>,
                    sources: &[[f64; 2]]|
          -> Result<(Vec<f32>, [usize; 2])> {
             match (pass, &head) {
-                (Some((planes, terms)), Some(head)) => Ok((
+                (Some(pass), Some(head)) => Ok((
                     head::source_fields(
-                        room,
-                        terms,
+                        &pass.terms,
+                        &pass.tables,
                         sources,
-                        &head.coefficients(room, planes, grid, sources),
+                        &head.coefficients(room, &pass.planes, grid, sources),
                         &head.weights,
-                        &norm,
                     ),
-                    terms.grid,
+                    pass.terms.grid,
                 )),
                 _ => Ok((
                     self.forward_raw_with(self.encode(room, sources, grid)?, grid, imp)?,
@@ -342,6 +346,14 @@ impl Surrogate {
         let many = self.predict_many(layout, &[source])?;
         Ok(many.index_axis(ndarray::Axis(0), 0).mapv(f64::from))
     }
+}
+
+/// An operator network's pass over one view of a room: its planes, the room terms and the
+/// tables of the sources.
+struct RoomPass {
+    planes: Vec<f32>,
+    terms: RoomTerms,
+    tables: SourceTables,
 }
 
 /// Canonical coordinates of real `sources`.
