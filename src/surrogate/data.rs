@@ -127,6 +127,12 @@ impl Normalization {
     pub fn inverse(&self, y: f32, speed_mps: f64) -> f32 {
         self.concentration_scale * y.max(0.0).exp_m1() / self.factor(speed_mps)
     }
+
+    /// [`Normalization::inverse`] of every value, in place and vectorised (arguments above 80,
+    /// far beyond any field, are taken as 80).
+    pub fn inverse_slice(&self, values: &mut [f32], speed_mps: f64) {
+        super::expm1::expm1_scaled(values, self.concentration_scale / self.factor(speed_mps));
+    }
 }
 
 /// `(h, w)` rounded up to multiples of `multiple`.

@@ -232,6 +232,18 @@ fn table(
     }
 }
 
+/// The `S::F32_LANES` values of `v` from `at` on, as a vector (a function, not a closure, so
+/// that it is inlined into the instruction set's code).
+///
+/// # Panics
+/// When they are not all in `v`.
+#[inline(always)]
+fn vector_at<S: Simd>(v: &[f32], at: usize) -> S::f32s {
+    let part = &v[at..at + S::F32_LANES];
+    // SAFETY: `part` holds `S::F32_LANES` readable values.
+    unsafe { load::<S>(part.as_ptr()) }
+}
+
 /// A block of sources: every row, every tile.
 struct Task<'a> {
     rows: usize,
@@ -259,11 +271,6 @@ impl WithSimd for Task<'_> {
         let (j_groups, g_size, hidden) = (weights.groups, weights.group_size, weights.hidden);
         let tw = 2 * w - 1;
         // A vector of `lanes` values of `v` from `at` on.
-        let vector = |v: &[f32], at: usize| {
-            let part = &v[at..at + lanes];
-            // SAFETY: `part` holds `lanes` readable values.
-            unsafe { load::<S>(part.as_ptr()) }
-        };
         let zero = simd.splat_f32s(0.0);
         let mut z = vec![zero; j_groups];
         let k = j_groups * g_size;
@@ -273,32 +280,15 @@ impl WithSimd for Task<'_> {
                 let col = t * TILE + sub * lanes;
                 let at = row * w + col;
                 let block = row * tiles + t;
-                // SAFETY (every read below): `source_fields` checked that the trunk holds `k`
-                // packed planes and the room terms `hidden`, so tile `block`'s vector `sub` of
-                // each plane lies within them.
-                let trunk = |kk: usize| unsafe {
-                    load::<S>(
-                        terms
-                            .trunk
-                            .as_ptr()
-                            .add((block * k + kk) * TILE + sub * lanes),
-                    )
-                };
-                let room = |u: usize| unsafe {
-                    load::<S>(
-                        terms
-                            .room
-                            .as_ptr()
-                            .add((block * hidden + u) * TILE + sub * lanes),
-                    )
-                };
+                let trunk = (block * k) * TILE + sub * lanes;
+                let room = (block * hidden) * TILE + sub * lanes;
                 for (n, source) in sources.iter().enumerate() {
                     let (js, is) = source.cell;
                     let table = source.table;
                     let trow = row + rows - 1 - js;
                     let first = col + w - 1 - is;
-                    let prior = vector(&table.prior, trow * tw + first);
-                    let dx = vector(&table.dx, first);
+                    let prior = vector_at::<S>(&table.prior, trow * tw + first);
+                    let dx = vector_at::<S>(&table.dx, first);
                     let dy = simd.splat_f32s(table.dy[trow]);
                     // z_j = sum_g a_jg T_jg over the tile.
                     let a = &source.coefficients[..k];
@@ -306,14 +296,18 @@ impl WithSimd for Task<'_> {
                         let mut acc = zero;
                         for g in 0..g_size {
                             let kk = j * g_size + g;
-                            acc = simd.mul_add_f32s(simd.splat_f32s(a[kk]), trunk(kk), acc);
+                            acc = simd.mul_add_f32s(
+                                simd.splat_f32s(a[kk]),
+                                vector_at::<S>(&terms.trunk, trunk + kk * TILE),
+                                acc,
+                            );
                         }
                         *zj = acc;
                     }
                     let mut y = simd.splat_f32s(weights.b_out);
                     for u in 0..hidden {
                         let ws = &weights.w_s[3 * u..3 * u + 3];
-                        let mut acc = room(u);
+                        let mut acc = vector_at::<S>(&terms.room, room + u * TILE);
                         acc = simd.mul_add_f32s(simd.splat_f32s(ws[0]), prior, acc);
                         acc = simd.mul_add_f32s(simd.splat_f32s(ws[1]), dx, acc);
                         acc = simd.mul_add_f32s(simd.splat_f32s(ws[2]), dy, acc);

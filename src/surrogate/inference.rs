@@ -317,23 +317,35 @@ impl Surrogate {
         {
             let chunk = k * BANK_CHUNK..k * BANK_CHUNK + fields.dim().0;
             // Canonical padded outputs `[n, 1, H', W']`, turned back cell by cell.
-            let (direct, [gh, gw]) = raw(&room, &direct_pass, &canonical[chunk.clone()])?;
+            // Concentrations on the canonical grid.
+            let (mut direct, [gh, gw]) = raw(&room, &direct_pass, &canonical[chunk.clone()])?;
+            norm.inverse_slice(&mut direct, speed);
             let mirrored = match &mirror {
-                Some((mroom, msources)) => Some(raw(mroom, &mirror_pass, &msources[chunk])?.0),
+                Some((mroom, msources)) => {
+                    let mut values = raw(mroom, &mirror_pass, &msources[chunk])?.0;
+                    norm.inverse_slice(&mut values, speed);
+                    Some(values)
+                }
                 None => None,
             };
-            for ((n, j, i), slot) in fields.indexed_iter_mut() {
-                if solid[[j, i]] {
-                    continue;
-                }
-                let (jc, ic) = frame.cell_to_canonical(j, i);
-                let at = |row: usize| (n * gh + row) * gw + ic;
-                let mut c = norm.inverse(direct[at(jc)], speed);
-                if let Some(values) = &mirrored {
-                    c += norm.inverse(values[at(rows - 1 - jc)], speed);
-                }
-                *slot = weight * c;
-            }
+            fields
+                .axis_iter_mut(ndarray::Axis(0))
+                .into_par_iter()
+                .enumerate()
+                .for_each(|(n, mut field)| {
+                    for ((j, i), slot) in field.indexed_iter_mut() {
+                        if solid[[j, i]] {
+                            continue;
+                        }
+                        let (jc, ic) = frame.cell_to_canonical(j, i);
+                        let at = |row: usize| (n * gh + row) * gw + ic;
+                        let mut c = direct[at(jc)];
+                        if let Some(values) = &mirrored {
+                            c += values[at(rows - 1 - jc)];
+                        }
+                        *slot = weight * c;
+                    }
+                });
         }
         Ok(out)
     }

@@ -10,6 +10,7 @@ pub mod config;
 pub mod conv;
 pub mod data;
 pub mod eval;
+pub mod expm1;
 pub mod head;
 pub mod inference;
 pub mod model;

@@ -57,8 +57,8 @@ pub struct SavedModel {
     pub weights_digest: String,
     /// Predictions average the room and its mirror image across the wind (an exact symmetry of
     /// the physics; two forward passes per field; [`super::Surrogate::predict_many`]). True
-    /// for every model trained since; false (one pass) in models written before, unless their
-    /// `config.json` sets it.
+    /// for every U-Net trained since, false for operator networks (whose bank it would cost
+    /// twice) and in models written before, unless their `config.json` sets it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub mirror_average: bool,
 }
@@ -80,7 +80,7 @@ impl SavedModel {
             history: state.history.clone(),
             best: state.best,
             weights_digest: String::new(),
-            mirror_average: true,
+            mirror_average: config.model.operator.is_none(),
         }
     }
 
