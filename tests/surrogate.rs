@@ -1183,7 +1183,8 @@ fn the_kept_epoch_is_the_best_by_the_chosen_validation_score() {
     assert!(matches!(err, Error::Model(_)), "{err}");
 }
 
-/// A tiny operator network: two groups of two terms, two room planes, four hidden units.
+/// A tiny operator network: two groups of two terms, two room planes, five hidden units (the
+/// fused head pads them to whole blocks).
 fn tiny_operator(epochs: usize) -> TrainingConfig {
     let mut config = tiny_config(epochs);
     config.model = config
@@ -1194,7 +1195,7 @@ fn tiny_operator(epochs: usize) -> TrainingConfig {
                 .with_groups(2)
                 .with_group_size(2)
                 .with_room_planes(2)
-                .with_hidden(4),
+                .with_hidden(5),
         ));
     config
 }

@@ -28,6 +28,9 @@ use crate::error::{Error, Result};
 /// that every row is whole vectors.
 const TILE: usize = 16;
 
+/// Hidden units computed together (each `z_j` is loaded once per block).
+const UNITS: usize = 4;
+
 /// Sources per parallel task (they share the rows of the trunk planes in cache).
 const SOURCES_PER_TASK: usize = 8;
 
@@ -38,9 +41,9 @@ pub struct HeadWeights {
     pub groups: usize,
     /// Terms per group `G`.
     pub group_size: usize,
-    /// Hidden units `H`.
+    /// Hidden units `H`, padded with units of zero weights to whole blocks of [`UNITS`].
     pub hidden: usize,
-    /// `[H, J]` weights of the bilinear planes.
+    /// `[J, H]` weights of the bilinear planes.
     pub w_z: Vec<f32>,
     /// `[H, 3]` weights of the per-source planes (prior, `tanh(dx / 2 m)`, `tanh(dy / 2 m)`).
     pub w_s: Vec<f32>,
@@ -304,22 +307,31 @@ impl WithSimd for Task<'_> {
                         }
                         *zj = acc;
                     }
+                    // Hidden units in blocks of UNITS, so that each z_j is read once a block.
                     let mut y = simd.splat_f32s(weights.b_out);
-                    for u in 0..hidden {
-                        let ws = &weights.w_s[3 * u..3 * u + 3];
-                        let mut acc = vector_at::<S>(&terms.room, room + u * TILE);
-                        acc = simd.mul_add_f32s(simd.splat_f32s(ws[0]), prior, acc);
-                        acc = simd.mul_add_f32s(simd.splat_f32s(ws[1]), dx, acc);
-                        acc = simd.mul_add_f32s(simd.splat_f32s(ws[2]), dy, acc);
-                        let wz = &weights.w_z[u * j_groups..(u + 1) * j_groups];
-                        for (&wgt, &zj) in wz.iter().zip(&z) {
-                            acc = simd.mul_add_f32s(simd.splat_f32s(wgt), zj, acc);
+                    for u0 in (0..hidden).step_by(UNITS) {
+                        let mut acc = [zero; UNITS];
+                        for (q, a) in acc.iter_mut().enumerate() {
+                            let u = u0 + q;
+                            let ws = &weights.w_s[3 * u..3 * u + 3];
+                            *a = vector_at::<S>(&terms.room, room + u * TILE);
+                            *a = simd.mul_add_f32s(simd.splat_f32s(ws[0]), prior, *a);
+                            *a = simd.mul_add_f32s(simd.splat_f32s(ws[1]), dx, *a);
+                            *a = simd.mul_add_f32s(simd.splat_f32s(ws[2]), dy, *a);
                         }
-                        y = simd.mul_add_f32s(
-                            simd.splat_f32s(weights.w_out[u]),
-                            simd.max_f32s(acc, zero),
-                            y,
-                        );
+                        for (j, &zj) in z.iter().enumerate() {
+                            let wz = &weights.w_z[j * hidden + u0..j * hidden + u0 + UNITS];
+                            for (a, &wgt) in acc.iter_mut().zip(wz) {
+                                *a = simd.mul_add_f32s(simd.splat_f32s(wgt), zj, *a);
+                            }
+                        }
+                        for (q, a) in acc.into_iter().enumerate() {
+                            y = simd.mul_add_f32s(
+                                simd.splat_f32s(weights.w_out[u0 + q]),
+                                simd.max_f32s(a, zero),
+                                y,
+                            );
+                        }
                     }
                     let dst = &mut out[n * plane + at..n * plane + at + lanes];
                     // SAFETY: `dst` holds `lanes` writable values.
@@ -371,22 +383,38 @@ impl FusedHead {
                 None => Ok(vec![0.0; n]),
             }
         };
+        // Hidden units padded to whole blocks with units of zero weights (they add nothing).
+        let padded = hidden.div_ceil(UNITS) * UNITS;
+        let unit = |u: usize, c: std::ops::Range<usize>| {
+            if u < hidden {
+                column(u, c)
+            } else {
+                vec![0.0; c.len()]
+            }
+        };
+        let pad = |mut v: Vec<f32>| {
+            v.resize(padded, 0.0);
+            v
+        };
         Ok(Self {
             weights: HeadWeights {
                 groups,
                 group_size,
-                hidden,
-                w_z: (0..hidden).flat_map(|u| column(u, 0..groups)).collect(),
-                w_s: (0..hidden)
-                    .flat_map(|u| column(u, groups + room_planes..inputs))
+                hidden: padded,
+                w_z: (0..groups)
+                    .flat_map(|j| (0..padded).map(move |u| (u, j)))
+                    .map(|(u, j)| if u < hidden { mix[u * inputs + j] } else { 0.0 })
                     .collect(),
-                w_out: values(op.out.weight.val())?,
+                w_s: (0..padded)
+                    .flat_map(|u| unit(u, groups + room_planes..inputs))
+                    .collect(),
+                w_out: pad(values(op.out.weight.val())?),
                 b_out: bias(&op.out, 1)?[0],
             },
-            w_room: (0..hidden)
-                .flat_map(|u| column(u, groups..groups + room_planes))
+            w_room: (0..padded)
+                .flat_map(|u| unit(u, groups..groups + room_planes))
                 .collect(),
-            b_hidden: bias(&op.mix, hidden)?,
+            b_hidden: pad(bias(&op.mix, hidden)?),
         })
     }
 
