@@ -128,7 +128,8 @@ struct TrainArgs {
     #[arg(long)]
     prior_skip: bool,
     /// Train the source-late operator network: the U-Net sees the room alone, once, and each
-    /// source enters in a light per-source head (analytic inputs; docs/plumenet.md).
+    /// source enters in a light per-source head (analytic inputs; docs/plumenet.md). With
+    /// --init-from a U-Net, its body starts from the U-Net's weights.
     #[arg(long, conflicts_with = "prior_skip")]
     operator: bool,
     /// Start from this trained model's weights (its architecture and inputs too) instead of
@@ -674,6 +675,14 @@ fn train(a: TrainArgs) -> Result<()> {
         let start = Surrogate::load(dir)?;
         let saved = start.saved();
         config.model = saved.architecture.clone();
+        if a.operator && saved.architecture.operator.is_none() {
+            // An operator network on the trained U-Net's body.
+            config.model = config
+                .model
+                .with_in_channels(ROOM_CHANNELS)
+                .with_prior_skip(None)
+                .with_operator(Some(OperatorConfig::new()));
+        }
         if let Some(filters) = &a.filters {
             config.model.filters = filters.clone();
         }

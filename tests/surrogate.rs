@@ -13,7 +13,7 @@ use plumenet::surrogate::config::EpochLoss;
 use plumenet::frame::Frame;
 use plumenet::surrogate::conv::kernel::Isa;
 use plumenet::surrogate::model::{ConvImpl, OperatorConfig, ROOM_CHANNELS};
-use plumenet::surrogate::saved::{load_weights, weights_bytes, weights_digest};
+use plumenet::surrogate::saved::{load_weights, named_tensors, weights_bytes, weights_digest};
 use plumenet::surrogate::{
     PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train,
 };
@@ -1316,4 +1316,51 @@ fn the_vectorised_inverse_transform_is_expm1() {
     }
     // A few units in the last place (f32's is 6e-8).
     assert!(worst < 5e-7, "worst relative error {worst:e}");
+}
+
+/// An operator network started from a trained U-Net (`train --operator --init-from`) carries
+/// the U-Net's body: every convolution and up-sampling of the encoder and decoder as trained,
+/// the first one reading the room's five channels of the seven; a U-Net of another body or
+/// inputs is refused.
+#[test]
+fn an_operator_network_starts_from_a_trained_unets_body() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let unet_config = tiny_config(1);
+    train(&data, &unet_config, &tmp.path().join("unet"), &mut |_| ()).unwrap();
+    let unet = Surrogate::load(&tmp.path().join("unet")).unwrap();
+    let device = plumenet::surrogate::backend::device();
+    let to = tiny_operator(1).model;
+    let net = unet
+        .net()
+        .operator_from(&unet_config.model, &to, 7, &device)
+        .unwrap();
+    let old: std::collections::BTreeMap<_, _> =
+        named_tensors(unet.net()).unwrap().into_iter().collect();
+    let mut copied = 0;
+    for (name, new) in named_tensors(&net).unwrap() {
+        if name.starts_with("head") || name.starts_with("operator") {
+            continue;
+        }
+        let old = &old[&name];
+        if name == "encoders.0.convs.0.weight" {
+            for (c, &i) in [0, 1, 3, 4, 5].iter().enumerate() {
+                assert_eq!(
+                    new.index_axis(ndarray::Axis(1), c),
+                    old.index_axis(ndarray::Axis(1), i),
+                    "input {c}"
+                );
+            }
+        } else {
+            assert_eq!(&new, old, "{name}");
+        }
+        copied += 1;
+    }
+    assert!(copied >= 8, "{copied} tensors copied");
+    let other = tiny_operator(1).model.with_filters(vec![4, 6]);
+    assert_err(
+        unet.net()
+            .operator_from(&unet_config.model, &other, 7, &device),
+        "same body",
+    );
 }

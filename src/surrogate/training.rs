@@ -340,6 +340,9 @@ fn initial_model(config: &TrainingConfig, device: &Device) -> Result<PlumeNet> {
             warm.model
         )));
     }
+    if config.model.operator.is_some() && saved.architecture.operator.is_none() {
+        return net.operator_from(&saved.architecture, &config.model, config.seed, device);
+    }
     if !config.model.widens(&saved.architecture) {
         return Err(Error::Model(format!(
             "{} is not the model to start from: its architecture (filters {:?}) is not the \

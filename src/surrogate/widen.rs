@@ -164,3 +164,93 @@ impl PlumeNet {
         Ok(net)
     }
 }
+
+/// The room channels of an operator network among the analytic inputs of a U-Net (mask,
+/// signed distance, Peclet number, `u / U`, `v / U`; the U-Net's source bump and prior are
+/// per-source planes in an operator network).
+const ROOM_OF_ANALYTIC: [usize; 5] = [0, 1, 3, 4, 5];
+
+impl PlumeNet {
+    /// An operator network `to` that starts from this trained U-Net (of architecture `from`,
+    /// analytic inputs, no prior skip, the same levels, filters, kernel and convolutions per
+    /// level): every convolution of the U-Net's body is copied, the first one reading only the
+    /// room's channels; the head that gives the room planes and the per-source head are drawn
+    /// from `seed`.
+    ///
+    /// # Errors
+    /// [`Error::Model`] when the architectures do not fit or a weight cannot be read.
+    pub fn operator_from(
+        &self,
+        from: &PlumeNetConfig,
+        to: &PlumeNetConfig,
+        seed: u64,
+        device: &Device,
+    ) -> Result<PlumeNet> {
+        let body = |c: &PlumeNetConfig| (c.filters.clone(), c.kernel_size, c.convs_per_level);
+        if to.operator.is_none()
+            || from.operator.is_some()
+            || from.skips_prior()
+            || from.in_channels != 7
+            || to.in_channels != ROOM_OF_ANALYTIC.len()
+            || body(from) != body(to)
+        {
+            return Err(Error::Model(format!(
+                "an operator network starts from a U-Net of the analytic inputs without the \
+                 prior skip and with the same body (filters {:?}, kernel {}, {} convolutions \
+                 per level)",
+                to.filters, to.kernel_size, to.convs_per_level
+            )));
+        }
+        let mut net = to.init_seeded(device, seed);
+        let levels = from.filters.len();
+        let identity = |n: usize| (0..n).collect::<Vec<_>>();
+        for l in 0..levels {
+            let (new, old) = (&mut net.encoders[l].convs, &self.encoders[l].convs);
+            for (k, (n, o)) in new.iter_mut().zip(old).enumerate() {
+                if (k, l) == (0, 0) {
+                    select_inputs(n, o, &ROOM_OF_ANALYTIC, device)?;
+                } else {
+                    let cin = if k == 0 {
+                        from.filters[l - 1]
+                    } else {
+                        from.filters[l]
+                    };
+                    embed_conv(n, o, &identity(cin), device)?;
+                }
+            }
+        }
+        for d in 0..levels - 1 {
+            let l = levels - 2 - d;
+            embed_up(
+                &mut net.ups[d],
+                &self.ups[d],
+                &identity(from.filters[l + 1]),
+                device,
+            )?;
+            let (new, old) = (&mut net.decoders[d].convs, &self.decoders[d].convs);
+            for (k, (n, o)) in new.iter_mut().zip(old).enumerate() {
+                let cin = if k == 0 {
+                    2 * from.filters[l]
+                } else {
+                    from.filters[l]
+                };
+                embed_conv(n, o, &identity(cin), device)?;
+            }
+        }
+        Ok(net)
+    }
+}
+
+/// Copies `old`'s weights into `new`, whose input `c` is `old`'s input `inputs[c]`, bias too.
+fn select_inputs(new: &mut Conv2d, old: &Conv2d, inputs: &[usize], device: &Device) -> Result<()> {
+    let (ow, [cout, ocin, kh, kw]) = values(&old.weight)?;
+    let area = kh * kw;
+    let mut nw = Vec::with_capacity(cout * inputs.len() * area);
+    for o in 0..cout {
+        for &i in inputs {
+            nw.extend_from_slice(&ow[(o * ocin + i) * area..(o * ocin + i + 1) * area]);
+        }
+    }
+    new.weight = param(nw, [cout, inputs.len(), kh, kw], device);
+    embed_bias(&mut new.bias, &old.bias, device)
+}
