@@ -26,10 +26,10 @@ use crate::error::{Error, Result};
 
 /// The padded grid's width is a multiple of this (the widest vector: 16 lanes of AVX-512), so
 /// that every row is whole vectors.
-const TILE: usize = 16;
+pub const TILE: usize = 16;
 
 /// Hidden units computed together (each `z_j` is loaded once per block).
-const UNITS: usize = 4;
+pub const UNITS: usize = 4;
 
 /// Sources per parallel task (they share the rows of the trunk planes in cache).
 const SOURCES_PER_TASK: usize = 8;
@@ -94,7 +94,7 @@ struct Source<'a> {
     table: &'a SourceTable,
 }
 
-/// The per-source tables of a room's sources ([`SourceTable`], one per sub-cell position,
+/// The per-source tables of a room's sources (one per sub-cell position,
 /// keyed by the position's exact bits).
 #[derive(Debug, Clone)]
 pub struct SourceTables {
