@@ -31,6 +31,10 @@ pub const TILE: usize = 16;
 /// Hidden units computed together (each `z_j` is loaded once per block).
 pub const UNITS: usize = 4;
 
+/// Sources computed together in the fused head (they share every load of the room's terms and
+/// the weights).
+const PAIR: usize = 2;
+
 /// Sources per parallel task (they share the rows of the trunk planes in cache).
 const SOURCES_PER_TASK: usize = 8;
 
@@ -275,7 +279,7 @@ impl WithSimd for Task<'_> {
         let tw = 2 * w - 1;
         // A vector of `lanes` values of `v` from `at` on.
         let zero = simd.splat_f32s(0.0);
-        let mut z = vec![zero; j_groups];
+        let mut z = vec![zero; j_groups * PAIR];
         let k = j_groups * g_size;
         let tiles = w / TILE;
         for row in 0..rows {
@@ -285,57 +289,79 @@ impl WithSimd for Task<'_> {
                 let block = row * tiles + t;
                 let trunk = (block * k) * TILE + sub * lanes;
                 let room = (block * hidden) * TILE + sub * lanes;
-                for (n, source) in sources.iter().enumerate() {
-                    let (js, is) = source.cell;
-                    let table = source.table;
-                    let trow = row + rows - 1 - js;
-                    let first = col + w - 1 - is;
-                    let prior = vector_at::<S>(&table.prior, trow * tw + first);
-                    let dx = vector_at::<S>(&table.dx, first);
-                    let dy = simd.splat_f32s(table.dy[trow]);
+                // Sources in pairs: each trunk vector and weight is loaded once for both (an
+                // odd last source is computed twice and stored once).
+                for (p, pair) in sources.chunks(PAIR).enumerate() {
+                    let both = |k: usize| &pair[k.min(pair.len() - 1)];
+                    let mut prior = [zero; PAIR];
+                    let mut dx = [zero; PAIR];
+                    let mut dy = [zero; PAIR];
+                    for q in 0..PAIR {
+                        let source = both(q);
+                        let (js, is) = source.cell;
+                        let table = source.table;
+                        let trow = row + rows - 1 - js;
+                        let first = col + w - 1 - is;
+                        prior[q] = vector_at::<S>(&table.prior, trow * tw + first);
+                        dx[q] = vector_at::<S>(&table.dx, first);
+                        dy[q] = simd.splat_f32s(table.dy[trow]);
+                    }
                     // z_j = sum_g a_jg T_jg over the tile.
-                    let a = &source.coefficients[..k];
-                    for (j, zj) in z.iter_mut().enumerate() {
-                        let mut acc = zero;
+                    for j in 0..j_groups {
+                        let mut acc = [zero; PAIR];
                         for g in 0..g_size {
                             let kk = j * g_size + g;
-                            acc = simd.mul_add_f32s(
-                                simd.splat_f32s(a[kk]),
-                                vector_at::<S>(&terms.trunk, trunk + kk * TILE),
-                                acc,
-                            );
-                        }
-                        *zj = acc;
-                    }
-                    // Hidden units in blocks of UNITS, so that each z_j is read once a block.
-                    let mut y = simd.splat_f32s(weights.b_out);
-                    for u0 in (0..hidden).step_by(UNITS) {
-                        let mut acc = [zero; UNITS];
-                        for (q, a) in acc.iter_mut().enumerate() {
-                            let u = u0 + q;
-                            let ws = &weights.w_s[3 * u..3 * u + 3];
-                            *a = vector_at::<S>(&terms.room, room + u * TILE);
-                            *a = simd.mul_add_f32s(simd.splat_f32s(ws[0]), prior, *a);
-                            *a = simd.mul_add_f32s(simd.splat_f32s(ws[1]), dx, *a);
-                            *a = simd.mul_add_f32s(simd.splat_f32s(ws[2]), dy, *a);
-                        }
-                        for (j, &zj) in z.iter().enumerate() {
-                            let wz = &weights.w_z[j * hidden + u0..j * hidden + u0 + UNITS];
-                            for (a, &wgt) in acc.iter_mut().zip(wz) {
-                                *a = simd.mul_add_f32s(simd.splat_f32s(wgt), zj, *a);
+                            let t = vector_at::<S>(&terms.trunk, trunk + kk * TILE);
+                            for (q, a) in acc.iter_mut().enumerate() {
+                                let c = both(q).coefficients[kk];
+                                *a = simd.mul_add_f32s(simd.splat_f32s(c), t, *a);
                             }
                         }
                         for (q, a) in acc.into_iter().enumerate() {
-                            y = simd.mul_add_f32s(
-                                simd.splat_f32s(weights.w_out[u0 + q]),
-                                simd.max_f32s(a, zero),
-                                y,
-                            );
+                            z[j * PAIR + q] = a;
                         }
                     }
-                    let dst = &mut out[n * plane + at..n * plane + at + lanes];
-                    // SAFETY: `dst` holds `lanes` writable values.
-                    unsafe { store::<S>(dst.as_mut_ptr(), simd.add_f32s(y, prior)) };
+                    // Hidden units in blocks of UNITS, so that each z_j is read once a block.
+                    let mut y = [simd.splat_f32s(weights.b_out); PAIR];
+                    for u0 in (0..hidden).step_by(UNITS) {
+                        let mut acc = [[zero; UNITS]; PAIR];
+                        for d in 0..UNITS {
+                            let u = u0 + d;
+                            let ws = &weights.w_s[3 * u..3 * u + 3];
+                            let base = vector_at::<S>(&terms.room, room + u * TILE);
+                            let (w0, w1, w2) = (
+                                simd.splat_f32s(ws[0]),
+                                simd.splat_f32s(ws[1]),
+                                simd.splat_f32s(ws[2]),
+                            );
+                            for q in 0..PAIR {
+                                let mut a = simd.mul_add_f32s(w0, prior[q], base);
+                                a = simd.mul_add_f32s(w1, dx[q], a);
+                                acc[q][d] = simd.mul_add_f32s(w2, dy[q], a);
+                            }
+                        }
+                        for j in 0..j_groups {
+                            let wz = &weights.w_z[j * hidden + u0..j * hidden + u0 + UNITS];
+                            for (d, &wgt) in wz.iter().enumerate() {
+                                let wgt = simd.splat_f32s(wgt);
+                                for q in 0..PAIR {
+                                    acc[q][d] = simd.mul_add_f32s(wgt, z[j * PAIR + q], acc[q][d]);
+                                }
+                            }
+                        }
+                        for d in 0..UNITS {
+                            let wo = simd.splat_f32s(weights.w_out[u0 + d]);
+                            for q in 0..PAIR {
+                                y[q] = simd.mul_add_f32s(wo, simd.max_f32s(acc[q][d], zero), y[q]);
+                            }
+                        }
+                    }
+                    for q in 0..pair.len() {
+                        let n = p * PAIR + q;
+                        let dst = &mut out[n * plane + at..n * plane + at + lanes];
+                        // SAFETY: `dst` holds `lanes` writable values.
+                        unsafe { store::<S>(dst.as_mut_ptr(), simd.add_f32s(y[q], prior[q])) };
+                    }
                 }
             }
         }
