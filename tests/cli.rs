@@ -1270,20 +1270,7 @@ fn the_dataset_and_model_commands_run_end_to_end() {
         "3",
         "--operator",
     ]);
-    let json = tmp.path().join("bench.json");
-    plumenet_ok(&[
-        "bench",
-        "--layout",
-        &room,
-        "--repeats",
-        "1",
-        "--no-reference",
-        "--model",
-        &dir("operator"),
-        "--json",
-        json.to_str().unwrap(),
-    ]);
-    let bench = read_json(&json);
+    let bench = bench_json(tmp.path(), &room, &["--model", &dir("operator")]);
     let (model, solver) = (
         bench["model_bank_ms"].as_f64().unwrap(),
         bench["total_ms"].as_f64().unwrap(),
@@ -1295,24 +1282,32 @@ fn the_dataset_and_model_commands_run_end_to_end() {
     );
 }
 
+/// The figures `bench` writes for `room` (one repeat, no Python reference) with `extra`
+/// arguments, through a JSON file in `dir`.
+fn bench_json(dir: &std::path::Path, room: &str, extra: &[&str]) -> serde_json::Value {
+    let json = dir.join("bench.json");
+    let mut args = vec![
+        "bench",
+        "--layout",
+        room,
+        "--repeats",
+        "1",
+        "--no-reference",
+        "--json",
+        json.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    plumenet_ok(&args);
+    read_json(&json)
+}
+
 /// bench (without its Python reference) and bench-ste run to success on a small room and write
 /// their figures.
 #[test]
 fn the_benchmarks_run_on_a_small_room() {
     let tmp = tempfile::tempdir().unwrap();
     let room = small_room(tmp.path());
-    let json = tmp.path().join("bench.json");
-    plumenet_ok(&[
-        "bench",
-        "--layout",
-        &room,
-        "--repeats",
-        "1",
-        "--no-reference",
-        "--json",
-        json.to_str().unwrap(),
-    ]);
-    let bench = read_json(&json);
+    let bench = bench_json(tmp.path(), &room, &[]);
     assert_eq!(bench["candidates"], 288);
     assert_eq!(bench["unknowns"], 288);
     assert!(bench["total_ms"].as_f64().unwrap() > 0.0);

@@ -60,11 +60,24 @@ impl WithSimd for Expm1<'_> {
     }
 }
 
+/// `1/8!, 1/7!, ..., 1/1!, 1/0!`: the Taylor coefficients of `exp`, highest first.
+const INVERSE_FACTORIALS: [f32; 9] = [
+    1.0 / 40320.0,
+    1.0 / 5040.0,
+    1.0 / 720.0,
+    1.0 / 120.0,
+    1.0 / 24.0,
+    1.0 / 6.0,
+    0.5,
+    1.0,
+    1.0,
+];
+
 /// Horner's rule for `sum_k c_k t^k` with the coefficients highest first.
 #[inline(always)]
-fn horner<S: Simd, const N: usize>(simd: S, t: S::f32s, coefficients: [f32; N]) -> S::f32s {
+fn horner<S: Simd>(simd: S, t: S::f32s, coefficients: &[f32]) -> S::f32s {
     let mut acc = simd.splat_f32s(0.0);
-    for c in coefficients {
+    for &c in coefficients {
         acc = simd.mul_add_f32s(acc, t, simd.splat_f32s(c));
     }
     acc
@@ -79,23 +92,7 @@ fn expm1<S: Simd>(simd: S, y: S::f32s) -> S::f32s {
         simd.splat_f32s(MAX_ARG),
     );
     // Small arguments: x (1 + x/2 + x^2/6 + ... + x^7/8!).
-    let small = simd.mul_f32s(
-        x,
-        horner(
-            simd,
-            x,
-            [
-                1.0 / 40320.0,
-                1.0 / 5040.0,
-                1.0 / 720.0,
-                1.0 / 120.0,
-                1.0 / 24.0,
-                1.0 / 6.0,
-                0.5,
-                1.0,
-            ],
-        ),
-    );
+    let small = simd.mul_f32s(x, horner(simd, x, &INVERSE_FACTORIALS[..8]));
     // Large arguments: 2^n exp(r) - 1.
     const SHIFTER: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
     const LN2_HI: f32 = 0.693_359_4;
@@ -105,20 +102,8 @@ fn expm1<S: Simd>(simd: S, y: S::f32s) -> S::f32s {
     let n = simd.sub_f32s(t, shifter);
     let r = simd.mul_add_f32s(n, simd.splat_f32s(-LN2_HI), x);
     let r = simd.mul_add_f32s(n, simd.splat_f32s(-LN2_LO), r);
-    let exp_r = horner(
-        simd,
-        r,
-        [
-            1.0 / 5040.0,
-            1.0 / 720.0,
-            1.0 / 120.0,
-            1.0 / 24.0,
-            1.0 / 6.0,
-            0.5,
-            1.0,
-            1.0,
-        ],
-    );
+    // exp(r) to degree 7.
+    let exp_r = horner(simd, r, &INVERSE_FACTORIALS[1..]);
     // The integer n sits in the low mantissa bits of t; 2^n has exponent bits n + 127.
     let bits = simd.sub_u32s(
         simd.transmute_u32s_f32s(t),

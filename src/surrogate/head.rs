@@ -324,8 +324,9 @@ impl WithSimd for Task<'_> {
                     // Hidden units in blocks of UNITS, so that each z_j is read once a block.
                     let mut y = [simd.splat_f32s(weights.b_out); PAIR];
                     for u0 in (0..hidden).step_by(UNITS) {
-                        let mut acc = [[zero; UNITS]; PAIR];
-                        for d in 0..UNITS {
+                        // acc[d][q]: hidden unit u0 + d of source q.
+                        let mut acc = [[zero; PAIR]; UNITS];
+                        for (d, unit) in acc.iter_mut().enumerate() {
                             let u = u0 + d;
                             let ws = &weights.w_s[3 * u..3 * u + 3];
                             let base = vector_at::<S>(&terms.room, room + u * TILE);
@@ -334,25 +335,26 @@ impl WithSimd for Task<'_> {
                                 simd.splat_f32s(ws[1]),
                                 simd.splat_f32s(ws[2]),
                             );
-                            for q in 0..PAIR {
-                                let mut a = simd.mul_add_f32s(w0, prior[q], base);
-                                a = simd.mul_add_f32s(w1, dx[q], a);
-                                acc[q][d] = simd.mul_add_f32s(w2, dy[q], a);
+                            for (q, a) in unit.iter_mut().enumerate() {
+                                *a = simd.mul_add_f32s(w0, prior[q], base);
+                                *a = simd.mul_add_f32s(w1, dx[q], *a);
+                                *a = simd.mul_add_f32s(w2, dy[q], *a);
                             }
                         }
                         for j in 0..j_groups {
                             let wz = &weights.w_z[j * hidden + u0..j * hidden + u0 + UNITS];
-                            for (d, &wgt) in wz.iter().enumerate() {
+                            let zj = &z[j * PAIR..(j + 1) * PAIR];
+                            for (unit, &wgt) in acc.iter_mut().zip(wz) {
                                 let wgt = simd.splat_f32s(wgt);
-                                for q in 0..PAIR {
-                                    acc[q][d] = simd.mul_add_f32s(wgt, z[j * PAIR + q], acc[q][d]);
+                                for (a, &zq) in unit.iter_mut().zip(zj) {
+                                    *a = simd.mul_add_f32s(wgt, zq, *a);
                                 }
                             }
                         }
-                        for d in 0..UNITS {
-                            let wo = simd.splat_f32s(weights.w_out[u0 + d]);
-                            for q in 0..PAIR {
-                                y[q] = simd.mul_add_f32s(wo, simd.max_f32s(acc[q][d], zero), y[q]);
+                        for (unit, &wo) in acc.iter().zip(&weights.w_out[u0..u0 + UNITS]) {
+                            let wo = simd.splat_f32s(wo);
+                            for (yq, &a) in y.iter_mut().zip(unit) {
+                                *yq = simd.mul_add_f32s(wo, simd.max_f32s(a, zero), *yq);
                             }
                         }
                     }
