@@ -328,20 +328,35 @@ impl Surrogate {
                 }
                 None => None,
             };
+            // Where each real cell reads its canonical value (and its mirror image's), `None`
+            // in obstacles: computed once a chunk, so that each field is a plain gather.
+            let cell_of = |mirrored: bool| -> Vec<Option<usize>> {
+                solid
+                    .indexed_iter()
+                    .map(|((j, i), &s)| {
+                        (!s).then(|| {
+                            let (jc, ic) = frame.cell_to_canonical(j, i);
+                            let row = if mirrored { rows - 1 - jc } else { jc };
+                            row * gw + ic
+                        })
+                    })
+                    .collect()
+            };
+            let direct_cells = cell_of(false);
+            let mirror_cells = mirrored.as_ref().map(|_| cell_of(true));
             fields
                 .axis_iter_mut(ndarray::Axis(0))
                 .into_par_iter()
                 .enumerate()
                 .for_each(|(n, mut field)| {
-                    for ((j, i), slot) in field.indexed_iter_mut() {
-                        if solid[[j, i]] {
+                    let base = n * gh * gw;
+                    for (k, slot) in field.iter_mut().enumerate() {
+                        let Some(at) = direct_cells[k] else {
                             continue;
-                        }
-                        let (jc, ic) = frame.cell_to_canonical(j, i);
-                        let at = |row: usize| (n * gh + row) * gw + ic;
-                        let mut c = direct[at(jc)];
-                        if let Some(values) = &mirrored {
-                            c += values[at(rows - 1 - jc)];
+                        };
+                        let mut c = direct[base + at];
+                        if let (Some(values), Some(cells)) = (&mirrored, &mirror_cells) {
+                            c += cells[k].map_or(0.0, |m| values[base + m]);
                         }
                         *slot = weight * c;
                     }
