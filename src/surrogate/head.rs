@@ -227,7 +227,7 @@ fn table(
             *slot = norm.forward(room.unbounded_prior(dx, dy) as f32, room.speed_mps);
         }
     });
-    let tanh = |d: f64| (d / super::data::OFFSET_SCALE_M).tanh() as f32;
+    let tanh = |d: f64| (d / super::room_batch::OFFSET_SCALE_M).tanh() as f32;
     SourceTable {
         prior,
         dx: (0..tw)

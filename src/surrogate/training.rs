@@ -17,9 +17,10 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::config::{EpochLoss, TrainState, TrainingConfig};
-use super::data::{InputSet, RoomBatch, RoomSamples, TrainingData, size_class};
+use super::data::{InputSet, TrainingData, size_class};
 use super::inference::Surrogate;
 use super::model::{ConvImpl, PlumeNet, ROOM_CHANNELS};
+use super::room_batch::{RoomBatch, RoomSamples};
 use super::saved::{SavedModel, load_weights, weights_bytes};
 use crate::error::{Error, Result};
 use crate::io;
