@@ -1208,11 +1208,25 @@ fn tiny_operator(epochs: usize) -> TrainingConfig {
 fn the_operator_networks_fused_bank_is_its_training_pass() {
     let tmp = tempfile::tempdir().unwrap();
     let data = rooms_dataset(&tmp.path().join("data"), 6, 4);
-    let config = tiny_operator(4);
-    let state = train(&data, &config, &tmp.path().join("model"), &mut |_| ()).unwrap();
+    // The tiny sizes run the fused kernel's general path; the default bilinear sizes (16
+    // groups of 8) the path compiled for them.
+    let mut default_sizes = tiny_operator(4);
+    default_sizes.model.operator = default_sizes
+        .model
+        .operator
+        .map(|op| op.with_groups(16).with_group_size(8));
+    for (name, config) in [("tiny", tiny_operator(4)), ("default", default_sizes)] {
+        assert_fused_bank_is_training_pass(&data, &config, &tmp.path().join(name));
+    }
+}
+
+/// Trains `config` on `data` into `dir` and compares its fused bank with its training pass in
+/// every room of `data`.
+fn assert_fused_bank_is_training_pass(data: &TrainingData, config: &TrainingConfig, dir: &Path) {
+    let state = train(data, config, &dir.join("model"), &mut |_| ()).unwrap();
     let (first, last) = (state.history[0].train, state.history[3].train);
     assert!(last < first, "training loss {first} -> {last}");
-    let model = with_mirror_average(&tmp.path().join("model"), &tmp.path().join("one"), false);
+    let model = with_mirror_average(&dir.join("model"), &dir.join("one"), false);
     let net = model.net();
     let device = plumenet::surrogate::backend::device();
     let norm = config.normalization;

@@ -265,6 +265,55 @@ impl WithSimd for Task<'_> {
 
     #[inline(always)]
     fn with_simd<S: Simd>(self, simd: S) {
+        // The default sizes compiled with their loop bounds known, others as they come.
+        match (self.weights.groups, self.weights.group_size) {
+            (16, 8) => self.run(simd, Fixed::<16, 8>),
+            (j, g) => self.run(simd, Sizes(j, g)),
+        }
+    }
+}
+
+/// The bilinear form's sizes `(J, G)`, known at compile time or not.
+trait Dims: Copy {
+    /// Groups `J`.
+    fn groups(self) -> usize;
+    /// Terms per group `G`.
+    fn group_size(self) -> usize;
+}
+
+/// Sizes known at compile time.
+#[derive(Clone, Copy)]
+struct Fixed<const J: usize, const G: usize>;
+
+impl<const J: usize, const G: usize> Dims for Fixed<J, G> {
+    #[inline(always)]
+    fn groups(self) -> usize {
+        J
+    }
+    #[inline(always)]
+    fn group_size(self) -> usize {
+        G
+    }
+}
+
+/// Sizes known at run time.
+#[derive(Clone, Copy)]
+struct Sizes(usize, usize);
+
+impl Dims for Sizes {
+    #[inline(always)]
+    fn groups(self) -> usize {
+        self.0
+    }
+    #[inline(always)]
+    fn group_size(self) -> usize {
+        self.1
+    }
+}
+
+impl Task<'_> {
+    #[inline(always)]
+    fn run<S: Simd, D: Dims>(self, simd: S, dims: D) {
         let Task {
             rows,
             terms,
@@ -275,7 +324,7 @@ impl WithSimd for Task<'_> {
         let [_, w] = terms.grid;
         let plane = terms.plane();
         let lanes = S::F32_LANES;
-        let (j_groups, g_size, hidden) = (weights.groups, weights.group_size, weights.hidden);
+        let (j_groups, g_size, hidden) = (dims.groups(), dims.group_size(), weights.hidden);
         let tw = 2 * w - 1;
         // A vector of `lanes` values of `v` from `at` on.
         let zero = simd.splat_f32s(0.0);
