@@ -15,6 +15,7 @@
 //! the thread count; the instruction set is chosen at run time as for the convolutions.
 
 use std::collections::BTreeMap;
+use std::collections::btree_map::Entry;
 
 use pulp::{Simd, WithSimd};
 use rayon::prelude::*;
@@ -121,11 +122,11 @@ impl SourceTables {
             shape: room.shape(),
             cell_m: room.cell_m,
         };
+        let size = (out.shape.0, terms.grid[1]);
         for &source in sources {
             let (_, key, fraction) = out.place(source);
-            if !out.tables.contains_key(&key) {
-                let t = table(room, (out.shape.0, terms.grid[1]), fraction, norm);
-                out.tables.insert(key, t);
+            if let Entry::Vacant(slot) = out.tables.entry(key) {
+                slot.insert(table(room, size, fraction, norm));
             }
         }
         out

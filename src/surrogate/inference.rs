@@ -288,75 +288,63 @@ impl Surrogate {
             Some((mroom, msources)) => pass(mroom, msources)?,
             None => None,
         };
-        // Transformed outputs `[n, H', W'']` with their grid `[H', W'']`.
-        let raw = |room: &RoomPlanes,
-                   pass: &Option<RoomPass>,
-                   sources: &[[f64; 2]]|
-         -> Result<(Vec<f32>, [usize; 2])> {
-            match (pass, &head) {
-                (Some(pass), Some(head)) => Ok((
-                    head::source_fields(
-                        &pass.terms,
-                        &pass.tables,
-                        sources,
-                        &head.coefficients(room, &pass.planes, grid, sources),
-                        &head.weights,
-                    ),
-                    pass.terms.grid,
-                )),
-                _ => Ok((
-                    self.forward_raw_with(self.encode(room, sources, grid)?, grid, imp)?,
-                    grid,
-                )),
-            }
+        // Transformed outputs `[n, H', W']` on `[gh, gw]`: the network's grid, or the room
+        // terms' (widened to whole tiles) for an operator network.
+        let [gh, gw] = direct_pass.as_ref().map_or(grid, |p| p.terms.grid);
+        let raw = |room: &RoomPlanes, pass: &Option<RoomPass>, sources: &[[f64; 2]]| match (
+            pass, &head,
+        ) {
+            (Some(pass), Some(head)) => Ok(head::source_fields(
+                &pass.terms,
+                &pass.tables,
+                sources,
+                &head.coefficients(room, &pass.planes, grid, sources),
+                &head.weights,
+            )),
+            _ => self.forward_raw_with(self.encode(room, sources, grid)?, grid, imp),
         };
+        // Where each real cell reads its canonical value and its mirror image's (row
+        // `rows - 1 - jc` of the mirrored room's output), `None` in obstacles: each field is
+        // then a plain gather.
+        let cells: Vec<Option<[usize; 2]>> = solid
+            .indexed_iter()
+            .map(|((j, i), &s)| {
+                (!s).then(|| {
+                    let (jc, ic) = frame.cell_to_canonical(j, i);
+                    [jc * gw + ic, (rows - 1 - jc) * gw + ic]
+                })
+            })
+            .collect();
         let mut out = Array3::<f32>::zeros((sources.len(), h, w));
         for (k, mut fields) in out
             .axis_chunks_iter_mut(ndarray::Axis(0), BANK_CHUNK)
             .enumerate()
         {
             let chunk = k * BANK_CHUNK..k * BANK_CHUNK + fields.dim().0;
-            // Canonical padded outputs `[n, 1, H', W']`, turned back cell by cell.
             // Concentrations on the canonical grid.
-            let (mut direct, [gh, gw]) = raw(&room, &direct_pass, &canonical[chunk.clone()])?;
+            let mut direct = raw(&room, &direct_pass, &canonical[chunk.clone()])?;
             norm.inverse_slice(&mut direct, speed);
             let mirrored = match &mirror {
                 Some((mroom, msources)) => {
-                    let mut values = raw(mroom, &mirror_pass, &msources[chunk])?.0;
+                    let mut values = raw(mroom, &mirror_pass, &msources[chunk])?;
                     norm.inverse_slice(&mut values, speed);
                     Some(values)
                 }
                 None => None,
             };
-            // Where each real cell reads its canonical value (and its mirror image's), `None`
-            // in obstacles: computed once a chunk, so that each field is a plain gather.
-            let cell_of = |mirrored: bool| -> Vec<Option<usize>> {
-                solid
-                    .indexed_iter()
-                    .map(|((j, i), &s)| {
-                        (!s).then(|| {
-                            let (jc, ic) = frame.cell_to_canonical(j, i);
-                            let row = if mirrored { rows - 1 - jc } else { jc };
-                            row * gw + ic
-                        })
-                    })
-                    .collect()
-            };
-            let direct_cells = cell_of(false);
-            let mirror_cells = mirrored.as_ref().map(|_| cell_of(true));
             fields
                 .axis_iter_mut(ndarray::Axis(0))
                 .into_par_iter()
                 .enumerate()
                 .for_each(|(n, mut field)| {
                     let base = n * gh * gw;
-                    for (k, slot) in field.iter_mut().enumerate() {
-                        let Some(at) = direct_cells[k] else {
+                    for (slot, cell) in field.iter_mut().zip(&cells) {
+                        let Some([at, mirror_at]) = *cell else {
                             continue;
                         };
                         let mut c = direct[base + at];
-                        if let (Some(values), Some(cells)) = (&mirrored, &mirror_cells) {
-                            c += cells[k].map_or(0.0, |m| values[base + m]);
+                        if let Some(values) = &mirrored {
+                            c += values[base + mirror_at];
                         }
                         *slot = weight * c;
                     }
