@@ -1093,6 +1093,10 @@ fn bad_likelihood_settings_fail_before_the_bank() {
             "the fit reference must be positive, got Some(-1.0)",
         ),
         (
+            &["localize", "--source", "4.5,2.5", "--background-odds", "0"][..],
+            "the background odds must be a positive number, got 0",
+        ),
+        (
             &["calibration", "--quick", "--target-area", "0"][..],
             "the target area must be a positive number of square metres",
         ),

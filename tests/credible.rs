@@ -207,18 +207,31 @@ fn records_without_the_new_fields_stay_readable() {
     use plumenet::study::experiment::RunRow;
     let rank = SteParams::for_feature(Feature::Rank);
     let mut v = serde_json::to_value(rank).unwrap();
-    for key in ["evidence_weight", "fit_reference"] {
+    for key in ["evidence_weight", "fit_reference", "background_odds"] {
         v.as_object_mut().unwrap().remove(key).unwrap();
     }
     let old: SteParams = serde_json::from_value(v).unwrap();
     assert_eq!((old.evidence_weight, old.fit_reference), (1.0, None));
+    assert_eq!(old.background_odds, None);
+    assert_eq!(old.background_odds(), 1.0, "all three rises equally likely");
+    // The calibrated default makes a rise unlikely; set, the odds stay what they are.
+    assert_eq!(rank.background_odds(), 0.01);
+    let set = SteParams {
+        background_odds: Some(0.5),
+        ..rank
+    };
+    assert_eq!(set.background_odds(), 0.5);
     let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
     assert_eq!(t["target_area_m2"], 1.0);
-    for key in ["target_area_m2", "grow_with_room"] {
+    assert_eq!(t["region_radius_m"], 1.5);
+    for key in ["target_area_m2", "grow_with_room", "region_radius_m"] {
         t.as_object_mut().unwrap().remove(key).unwrap();
     }
     let old: Termination = serde_json::from_value(t).unwrap();
-    assert_eq!((old.target_area_m2, old.grow_with_room), (None, false));
+    assert_eq!(
+        (old.target_area_m2, old.grow_with_room, old.region_radius_m),
+        (None, false, None)
+    );
     // A study's runs.csv from before the uncertainty columns.
     let csv = "layout,model,reality,paths,feature,sensor,run,seed,source_x,source_y,start_x,\
         start_y,estimate_x,estimate_y,error_m,highest_x,highest_y,highest_error_m,\

@@ -15,6 +15,7 @@ use plumenet::ste::params::RankParams;
 use plumenet::ste::posterior::{entropy, prior_support};
 use plumenet::ste::replay::{read_log, replay, thin};
 use plumenet::ste::robot::{Occupancy, path_length};
+use plumenet::ste::termination::REGION_RADIUS_M;
 use plumenet::ste::{
     Estimator, Feature, FeatureParams, FeatureTrack, MoxParams, MoxSensor, RobotParams, Sample,
     Sampling, SensorPreset, SteParams, Termination,
@@ -586,14 +587,41 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
             .fold(f64::NEG_INFINITY, f64::max);
         // The best candidate's mean standardised squared residual; with a fit reference, a
         // fit worse than it weighs every reading down by their ratio.
-        let fit = top / (-0.5 * params.evidence_weight * n / (n + 1.0)) / n;
-        let scale = params.fit_reference.map_or(1.0, |r| r / fit.max(r));
+        let per_reading = |ll: f64| ll / (-0.5 * params.evidence_weight * n / (n + 1.0)) / n;
+        let scale = params
+            .fit_reference
+            .map_or(1.0, |r| r / per_reading(top).max(r));
+        // Each rise weighs its prior odds against none.
+        let o = params.background_odds();
+        let prior: Vec<f64> = match levels.len() {
+            1 => vec![1.0],
+            _ => vec![1.0, o, o],
+        };
         let w: Vec<f64> = (0..sampler.len())
             .map(|k| match sup[k] {
-                true => log_lik.iter().map(|ll| (scale * (ll[k] - top)).exp()).sum(),
+                true => log_lik
+                    .iter()
+                    .zip(&prior)
+                    .map(|(ll, q)| q * (scale * (ll[k] - top)).exp())
+                    .sum(),
                 false => 0.0,
             })
             .collect();
+        // The fit reported is the most probable (rise, candidate)'s.
+        let map = log_lik
+            .iter()
+            .zip(&prior)
+            .flat_map(|(ll, q)| {
+                ll.iter()
+                    .zip(&sup)
+                    .filter(|p| *p.1)
+                    .map(move |p| (scale * p.0 + q.ln(), *p.0))
+            })
+            .fold(
+                (f64::NEG_INFINITY, 0.0),
+                |a, b| if b.0 > a.0 { b } else { a },
+            );
+        let fit = per_reading(map.1);
         let total: f64 = w.iter().sum();
         for (k, (&p, wk)) in est.posterior().iter().zip(&w).enumerate() {
             assert!(
@@ -1128,6 +1156,7 @@ fn termination_needs_a_stable_concentrated_belief() {
         grow_with_room: true,
         stable_iterations: 1,
         target_area_m2: None,
+        region_radius_m: None,
         require_plume: false,
     };
     // The budget: 30 up to 72 m² of free floor, then with its square root (4 x 72 m²: twice);
@@ -1151,6 +1180,33 @@ fn termination_needs_a_stable_concentrated_belief() {
     };
     assert!(by_area(area + 1e-6).concentrated(&est));
     assert!(!by_area(area - 1e-6).concentrated(&est));
+    // With a region radius, the region must also lie within it of the MAP cell: radii just
+    // above and just below the farthest cell's distance.
+    let [mx, my] = est.estimate();
+    let farthest = est
+        .credible_set(0.9)
+        .iter()
+        .map(|&k| (est.candidates()[k][0] - mx).hypot(est.candidates()[k][1] - my))
+        .fold(0.0, f64::max);
+    assert!(
+        farthest > 1.0,
+        "the 40-reading region spreads: {farthest} m"
+    );
+    let compact = |radius: f64| Termination {
+        region_radius_m: Some(radius),
+        ..by_area(area + 1e-6)
+    };
+    assert!(compact(farthest + 1e-6).concentrated(&est));
+    assert!(!compact(farthest - 1e-6).concentrated(&est));
+    assert_err(
+        compact(0.0).check(72.0),
+        "the region radius must be a positive number of metres, got 0",
+    );
+    assert_err(compact(f64::NAN).check(72.0), "got NaN");
+    // The calibrated default asks for it; the paper's rule has no target area.
+    let default = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).termination;
+    assert_eq!(default.region_radius_m, Some(REGION_RADIUS_M));
+    assert_eq!(REGION_RADIUS_M, 1.5);
     assert_err(
         by_area(0.0).check(72.0),
         "the target area must be a positive number of square metres no larger than the room's 72.0, got 0",

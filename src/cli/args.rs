@@ -11,6 +11,7 @@ use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::sim::episode::StartRule;
 use plumenet::sim::{EpisodeConfig, Mismatch, derive_seed};
 use plumenet::ste::baseline::Guess;
+use plumenet::ste::termination::REGION_RADIUS_M;
 use plumenet::ste::{
     Baselines, Feature, PlannerKind, RobotParams, RoomBanks, Sampling, SensorPreset, Sigmas,
     SteParams, Termination, Uncertainty, ValidSteParams,
@@ -220,6 +221,15 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     evidence_weight: Option<f64>,
+    /// The prior odds of each background rise against none [default: 0.01 with a tempered
+    /// likelihood, else 1].
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true
+    )]
+    background_odds: Option<f64>,
     /// Take the readings' noise level from the data: a best fit worse than this reference
     /// weighs every reading down by their ratio.
     #[arg(
@@ -233,7 +243,7 @@ pub struct FeatureArgs {
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
     /// sensor's response with its lower floor (the other features' lag and floor instead);
     /// exactly invariant under every increasing transform of the readings.
-    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "background_odds", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
     paper_rank: bool,
 }
 
@@ -271,6 +281,9 @@ impl FeatureArgs {
             p.background_rise = a;
         }
         p.background_time_s = self.background_time;
+        if self.background_odds.is_some() {
+            p.background_odds = self.background_odds;
+        }
         p.wander_deg = self.wind_wander;
         if let Some(w) = self.evidence_weight {
             p.evidence_weight = w;
@@ -414,6 +427,7 @@ impl RunArgs {
         }
         if self.target_area.is_some() {
             c.termination.target_area_m2 = self.target_area;
+            c.termination.region_radius_m = Some(REGION_RADIUS_M);
         }
         if self.stop_sense_go {
             c.robot = RobotParams {

@@ -79,11 +79,18 @@ pub struct SteParams {
     /// A background of recirculated gas rising during the run, as a nuisance: the model's
     /// concentrations plus `a * (1 - exp(-t / background_time_s))` (t from the first reading),
     /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
-    /// concentrations ([`crate::layout::Layout::fully_mixed`]), each equally likely a priori and marginalised
-    /// in the posterior. 0 turns it off; rank's default is 0.5, the other features' 0 (and 0 is
-    /// what a record without this field reads as).
+    /// concentrations ([`crate::layout::Layout::fully_mixed`]), each rise
+    /// [`SteParams::background_odds()`] times as likely a priori as none, and marginalised in
+    /// the posterior. 0
+    /// turns it off; rank's default is 0.5, the other features' 0 (and 0 is what a record
+    /// without this field reads as).
     #[serde(default)]
     pub background_rise: f64,
+    /// The prior odds of each background rise (the half and the whole) against none; `None`
+    /// takes the default that goes with the evidence weight (see
+    /// [`SteParams::background_odds()`]; what a record without this field reads as).
+    #[serde(default)]
+    pub background_odds: Option<f64>,
     /// The background's time constant (s), the room's air-exchange time.
     #[serde(default = "default_background_time_s")]
     pub background_time_s: f64,
@@ -215,6 +222,7 @@ impl SteParams {
                 _ => 0.0,
             },
             background_time_s: default_background_time_s(),
+            background_odds: None,
             wander_deg: 0.0,
             evidence_weight: match feature {
                 Feature::Rank => RANK_EVIDENCE_WEIGHT,
@@ -230,6 +238,24 @@ impl SteParams {
         let mut params = Self::for_feature(feature);
         params.rank.model_rank_factor = rank_factor;
         params
+    }
+
+    /// The prior odds of each background rise against none ([`SteParams::background_rise`]):
+    /// the odds set, else [`TEMPERED_BACKGROUND_ODDS`] for a tempered likelihood
+    /// ([`SteParams::evidence_weight`] below 1) and 1, every rise as likely as none, for
+    /// independent readings. Every candidate whose plume the robot never met explains rising
+    /// readings as the background alone; independent readings refute those hundreds of
+    /// candidates by tens of nats, but a tempered likelihood only by a few, so with all rises
+    /// equally likely they would keep a large share of the posterior spread over the room
+    /// (`docs/calibration.md`).
+    pub fn background_odds(&self) -> f64 {
+        let tempered = self.evidence_weight < 1.0;
+        let default = if tempered {
+            TEMPERED_BACKGROUND_ODDS
+        } else {
+            1.0
+        };
+        self.background_odds.unwrap_or(default)
     }
 
     /// The wind turns (degrees) the estimator weighs: `[0]` with a steady wind, else
@@ -348,6 +374,14 @@ impl SteParams {
                 self.background_rise
             )));
         }
+        if let Some(o) = self
+            .background_odds
+            .filter(|o| !(o.is_finite() && *o > 0.0))
+        {
+            return Err(Error::Parameter(format!(
+                "the background odds must be a positive number, got {o}"
+            )));
+        }
         if !(self.background_time_s.is_finite() && self.background_time_s > 0.0) {
             return Err(Error::Parameter(format!(
                 "the background time constant must be a positive number of seconds, got {}",
@@ -438,6 +472,10 @@ const RANK_DETECTION_FLOOR_PPM: f64 = 0.2;
 /// in the paper arena and in unseen rooms; without a background it costs nothing measurable
 /// with Sensor II and about 0.1 m with the calibrated sensor and Sensor I).
 const BACKGROUND_RISE: f64 = 0.5;
+
+/// The default prior odds of each background rise against none for a tempered likelihood
+/// ([`SteParams::background_odds()`]): a rise of either size 1% as likely as none.
+pub const TEMPERED_BACKGROUND_ODDS: f64 = 0.01;
 
 /// The wander hypothesis's turns of the wind, in prior standard deviations (see
 /// [`SteParams::wander_deg`]), the steady direction first: a Gaussian truncated at 1.5 of them.

@@ -80,6 +80,19 @@ fn background_levels(params: &SteParams) -> Vec<f64> {
     }
 }
 
+/// The log prior weight of each of [`background_levels`], relative to no rise: none without
+/// the nuisance, else 0 for no rise and `ln o` for each rise, `o` the odds of
+/// [`SteParams::background_odds()`] (all 0, exactly, when every rise is as likely as none).
+fn background_log_prior(params: &SteParams) -> Vec<f64> {
+    match params.background_rise {
+        0.0 => vec![0.0],
+        _ => {
+            let o = params.background_odds().ln();
+            vec![0.0, o, o]
+        }
+    }
+}
+
 /// The grid Bayesian filter over candidate source cells.
 #[derive(Debug, Clone)]
 pub struct Estimator {
@@ -103,6 +116,8 @@ pub struct Estimator {
     mixed_ppm: Vec<f64>,
     /// Posterior of each background rise, summed over banks and candidates.
     background_posterior: Vec<f64>,
+    /// The log prior weight of each background rise ([`SteParams::background_odds()`]).
+    background_log_prior: Vec<f64>,
     log_prior: Vec<f64>,
     measured: FeatureTrack<f64>,
     edf: FeatureTrack<f64>,
@@ -198,6 +213,7 @@ impl Estimator {
             .map(|u| -0.5 * u * u)
             .collect();
         let backgrounds = background_levels(&params);
+        let rise_log_prior = background_log_prior(&params);
         let slots = samplers.len() * backgrounds.len() * n;
         let track = FeatureTrack::new(params.feature, params.features);
         Ok(Self {
@@ -206,7 +222,8 @@ impl Estimator {
             edf: FeatureTrack::new(Feature::Rank, params.features),
             params,
             bank_posterior: vec![1.0 / banks as f64; banks],
-            background_posterior: vec![1.0 / backgrounds.len() as f64; backgrounds.len()],
+            background_posterior: normalise(&rise_log_prior),
+            background_log_prior: rise_log_prior,
             backgrounds,
             mixed_ppm: samplers
                 .iter()
@@ -476,9 +493,17 @@ impl Estimator {
                 .collect(),
         };
         let (log_lik, steady_share) = self.wander_marginal(&slot_lik, positions);
+        let levels = self.backgrounds.len();
         let log_post: Vec<f64> = log_lik
             .chunks(positions)
-            .flat_map(|bank| self.log_prior.iter().zip(bank).map(|(a, b)| a + b))
+            .enumerate()
+            .flat_map(|(slot, bank)| {
+                let rise = self.background_log_prior[slot % levels];
+                self.log_prior
+                    .iter()
+                    .zip(bank)
+                    .map(move |(a, b)| a + b + rise)
+            })
             .collect();
         let best = argmax(&log_post);
         self.fit = Some(log_lik[best] / (factor * scale) / n);
@@ -486,7 +511,6 @@ impl Estimator {
         self.posterior = (0..positions)
             .map(|j| joint.iter().skip(j).step_by(positions).sum())
             .collect();
-        let levels = self.backgrounds.len();
         let slot_mass: Vec<f64> = joint.chunks(positions).map(|b| b.iter().sum()).collect();
         self.bank_posterior = slot_mass.chunks(levels).map(|b| b.iter().sum()).collect();
         self.steady_posterior =
