@@ -81,9 +81,8 @@ pub struct SteParams {
     /// with the rise `a` unknown among 0, half and the whole of this many fully mixed
     /// concentrations ([`crate::layout::Layout::fully_mixed`]), each rise
     /// [`SteParams::background_odds()`] times as likely a priori as none, and marginalised in
-    /// the posterior. 0
-    /// turns it off; rank's default is 0.5, the other features' 0 (and 0 is what a record
-    /// without this field reads as).
+    /// the posterior. 0 turns it off; rank's default is 0.5, the other features' 0 (and 0 is
+    /// what a record without this field reads as).
     #[serde(default)]
     pub background_rise: f64,
     /// The prior odds of each background rise (the half and the whole) against none; `None`

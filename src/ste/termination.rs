@@ -99,26 +99,20 @@ impl Termination {
     }
 
     /// Whether the belief is concentrated: the credible region within the target area when
-    /// one is set, and all of it within `region_radius_m` of the MAP cell when that is set; else entropy
-    /// below the threshold and the credible set confined within `radius_m` of the MAP cell;
-    /// never before the readings hold a plume when that is required.
+    /// one is set, and all of it within `region_radius_m` of the MAP cell when that is set;
+    /// else entropy below the threshold and the credible set confined within `radius_m` of
+    /// the MAP cell; never before the readings hold a plume when that is required.
     pub fn concentrated(&self, est: &Estimator) -> bool {
         if est.is_empty() || self.require_plume && est.plume_signal() < PLUME_SIGNAL_NOISES {
             return false;
         }
-        let cells = est.credible_set(self.mass);
-        let within = |radius: f64| {
-            let [mx, my] = est.estimate();
-            cells.iter().all(|&k| {
-                let [x, y] = est.candidates()[k];
-                (x - mx).hypot(y - my) <= radius
-            })
-        };
         if let Some(target) = self.target_area_m2 {
+            let cells = est.credible_set(self.mass);
             let area = cells.len() as f64 * credible::cell_area_m2(est.candidates());
-            return area <= target && self.region_radius_m.is_none_or(within);
+            return area <= target && self.region_radius_m.is_none_or(|r| within(est, &cells, r));
         }
-        est.entropy() < self.entropy_nats && within(self.radius_m)
+        est.entropy() < self.entropy_nats
+            && within(est, &est.credible_set(self.mass), self.radius_m)
     }
 
     /// The iteration limit in a room with `free_area_m2` of free floor:
@@ -171,4 +165,13 @@ impl Termination {
                 .iter()
                 .all(|&(c, [x, y])| c && (x - mx).hypot(y - my) <= self.radius_m)
     }
+}
+
+/// Whether every candidate of `cells` lies within `radius_m` of the MAP cell.
+fn within(est: &Estimator, cells: &[usize], radius_m: f64) -> bool {
+    let [mx, my] = est.estimate();
+    cells.iter().all(|&k| {
+        let [x, y] = est.candidates()[k];
+        (x - mx).hypot(y - my) <= radius_m
+    })
 }
