@@ -1145,6 +1145,72 @@ fn a_run_that_met_no_plume_does_not_stop() {
     assert!(!Termination::for_params(&default.ste.papers_rank()).require_plume);
 }
 
+/// A belief whose estimate could not have made the gas the robot met does not stop: the
+/// estimate's plume must reach at least one reading that holds the plume. One candidate is
+/// allowed (the estimate whatever the readings say); the same puff, and the sensor's recovery
+/// after it, read 1 m downwind of it lies in its plume, read 3 m upwind it lies where the solved plume is far below the
+/// detection floor.
+#[test]
+fn an_estimate_whose_plume_misses_the_gas_does_not_stop() {
+    use plumenet::ste::termination::PLUME_SIGNAL_NOISES;
+    let sampler = &world().room.sampler;
+    let source = [6.0, 2.0];
+    let k = (0..sampler.len())
+        .min_by(|&a, &b| {
+            let d = |c: [f64; 2]| (c[0] - source[0]).hypot(c[1] - source[1]);
+            d(sampler.candidates()[a]).total_cmp(&d(sampler.candidates()[b]))
+        })
+        .unwrap();
+    let [cx, cy] = sampler.candidates()[k];
+    let params = SteParams::for_feature(Feature::Rank);
+    let floor = params.detection_floor_ppm / params.ppm_per_unit;
+    let (downwind, upwind) = ([cx + 1.0, cy], [cx - 3.0, cy]);
+    assert!(f64::from(sampler.value(k, downwind[0], downwind[1])) > 10.0 * floor);
+    assert!(f64::from(sampler.value(k, upwind[0], upwind[1])) < 1e-3 * floor);
+    let mut only = vec![false; sampler.len()];
+    only[k] = true;
+    let mut sensor = MoxSensor::preset(SensorPreset::SensorII, true).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for _ in 0..600 {
+        sensor.sample(0.0, 0.1, &mut rng);
+    }
+    let mut samples = synthetic_samples(4, 300);
+    for (i, s) in samples.iter_mut().enumerate() {
+        let ppm = if (150..190).contains(&i) { 1.0 } else { 0.0 };
+        s.value = sensor.sample(ppm, 0.1, &mut rng);
+    }
+    let read_at = |[x, y]: [f64; 2]| {
+        let mut at = samples.clone();
+        for s in &mut at[150..] {
+            (s.x, s.y) = (x, y);
+        }
+        let mut est = Estimator::new(Arc::clone(sampler), &only, params).unwrap();
+        est.update(&at).unwrap();
+        est
+    };
+    let whole_room = |require_plume| Termination {
+        target_area_m2: Some(72.0),
+        require_plume,
+        ..Termination::default()
+    };
+    let (inside, outside) = (read_at(downwind), read_at(upwind));
+    for est in [&inside, &outside] {
+        assert_eq!(est.estimate(), [cx, cy]);
+        assert!(
+            est.plume_signal() >= PLUME_SIGNAL_NOISES,
+            "{}",
+            est.plume_signal()
+        );
+        assert!(whole_room(false).concentrated(est));
+    }
+    assert!(inside.reaches_plume(PLUME_SIGNAL_NOISES));
+    assert!(whole_room(true).concentrated(&inside));
+    assert!(!outside.reaches_plume(PLUME_SIGNAL_NOISES));
+    assert!(!whole_room(true).concentrated(&outside));
+    // Clean air alone holds no reading that high.
+    assert!(!read_at(downwind).reaches_plume(1e6));
+}
+
 #[test]
 fn termination_needs_a_stable_concentrated_belief() {
     let est = estimate(Feature::Rank, &synthetic_samples(2, 40));
@@ -1431,6 +1497,7 @@ fn drifting_clean_air_ties_follow_a_slow_drift() {
 fn a_session_takes_batches_refuses_bad_readings_and_resets() {
     use plumenet::ste::replay::replay;
     use plumenet::ste::session::Session;
+    use plumenet::ste::termination::PLUME_SIGNAL_NOISES;
     let ep = run_episode(
         world(),
         &EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII),
@@ -1440,6 +1507,8 @@ fn a_session_takes_batches_refuses_bad_readings_and_resets() {
         false,
     )
     .unwrap();
+    // The default rule stops only on an estimate whose plume reaches the gas met.
+    assert!(ep.converged && ep.plume_reached == Some(true));
     let c = ep.config;
     let config = c.session(9);
     let mut session = Session::new(&world().room, config).unwrap();
@@ -1468,6 +1537,10 @@ fn a_session_takes_batches_refuses_bad_readings_and_resets() {
             })
             .sum();
         assert!(mass >= 0.9 - 1e-9);
+        assert_eq!(
+            it.plume_reached,
+            session.estimator().reaches_plume(PLUME_SIGNAL_NOISES)
+        );
         if it.done {
             assert!(it.goal.is_none() && it.path.is_empty());
         }

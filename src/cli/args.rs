@@ -513,12 +513,19 @@ pub(super) fn layout_name(path: &std::path::Path) -> String {
     )
 }
 
-/// How a run ended, in words: converged, or unresolved, saying so when the robot met no plume.
-pub(super) fn outcome(converged: bool, plume_signal: f64) -> &'static str {
+/// How a run ended, in words: converged, or unresolved, saying so when the robot met no plume
+/// or the estimate's plume misses the gas it met (`plume_reached`, where known).
+pub(super) fn outcome(
+    converged: bool,
+    plume_signal: f64,
+    plume_reached: Option<bool>,
+) -> &'static str {
     if converged {
         "converged"
     } else if plume_signal < plumenet::ste::termination::PLUME_SIGNAL_NOISES {
         "unresolved (iteration budget spent, no plume met)"
+    } else if plume_reached == Some(false) {
+        "unresolved (iteration budget spent, the estimate's plume misses the gas met)"
     } else {
         "unresolved (iteration budget spent)"
     }

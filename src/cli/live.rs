@@ -142,7 +142,11 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
         run.last.estimate[1],
         run.error_m,
         run.legs,
-        outcome(run.last.converged, run.last.plume_signal),
+        outcome(
+            run.last.converged,
+            run.last.plume_signal,
+            Some(run.last.plume_reached),
+        ),
         run.readings
     );
     if let Some(path) = &a.json {

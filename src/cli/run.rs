@@ -77,7 +77,8 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
             episode.converged,
             plumenet::ste::posterior::plume_signal(
                 &episode.samples.iter().map(|s| s.value).collect::<Vec<_>>()
-            )
+            ),
+            episode.plume_reached,
         ),
         episode.iterations,
         episode.samples.len(),

@@ -34,7 +34,7 @@ use crate::ste::posterior::{Sample, SteParams};
 use crate::ste::robot::{Occupancy, RobotParams, path_length};
 use crate::ste::sensor::SensorPreset;
 use crate::ste::session::{Iteration, Session, SessionConfig};
-use crate::ste::termination::Termination;
+use crate::ste::termination::{PLUME_SIGNAL_NOISES, Termination};
 
 /// The world a simulated run happens in: the room as the estimator sees it, the room's wind,
 /// and the reality the robot senses.
@@ -255,6 +255,10 @@ pub struct Episode {
     /// of the true source ([`crate::ste::Uncertainty`]; `None` in a record without it).
     #[serde(default)]
     pub uncertainty: Option<Uncertainty>,
+    /// Whether the final estimate's plume reaches a reading that holds the plume
+    /// ([`crate::ste::Estimator::reaches_plume`]); `None` in a record without it.
+    #[serde(default)]
+    pub plume_reached: Option<bool>,
     /// Wall-clock time of the run (s).
     pub wall_time_s: f64,
 }
@@ -539,6 +543,7 @@ pub fn run_episode(
         backgrounds: est.backgrounds(),
         steady_wind: est.steady_posterior(),
         uncertainty: Some(est.uncertainty(Some(source))),
+        plume_reached: Some(est.reaches_plume(PLUME_SIGNAL_NOISES)),
         wall_time_s: clock.elapsed().as_secs_f64(),
     })
 }

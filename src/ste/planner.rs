@@ -9,7 +9,11 @@
 //! 2. Predicted observations: at each point `q` of a path (every 0.5 m, at most 40 points), the
 //!    plume bank gives every hypothesis's concentration; it is observed as
 //!    `y = ln(1 + c / 0.01)` (the feature-agnostic log scale the surrogate is trained on) with
-//!    Gaussian noise `sigma = 0.5`.
+//!    Gaussian noise `sigma = 0.5`, each point's evidence weighed by the estimator's
+//!    [`SteParams::evidence_weight`](crate::ste::params::SteParams::evidence_weight) `W` as
+//!    the likelihood weighs each reading's. Counted in full under a tempered likelihood, a few
+//!    metres near the estimate would seem to refute every other hypothesis that the posterior
+//!    in fact keeps, and the robot would circle the estimate while far mass stays.
 //! 3. Gain: `H(w) - sum_k w_k H(w | y = y_k)`, where `w | y_k` is the hypothesis posterior had
 //!    the source been hypothesis `k` (noise-free predictions), i.e. the mutual information
 //!    between the source and the path's observations, approximated on the hypotheses.
@@ -135,7 +139,14 @@ impl Planner {
         match self.kind {
             PlannerKind::BeliefClustering => {
                 let goals = self.cluster_goals(est, occupancy);
-                best_by_path_gain(&hyp, est.sampler(), occupancy, position, &goals)
+                best_by_path_gain(
+                    &hyp,
+                    est.sampler(),
+                    occupancy,
+                    position,
+                    &goals,
+                    est.params().evidence_weight,
+                )
             }
             PlannerKind::Baseline => baseline(&hyp, est, occupancy, position),
         }
@@ -255,8 +266,14 @@ fn nearest(centres: &[[f64; 2]], p: [f64; 2]) -> usize {
         .unwrap_or(0)
 }
 
-/// Expected information gain of observing the hypotheses' log concentrations at `points`.
-fn expected_gain(hyp: &Hypotheses, sampler: &FieldSampler, points: &[[f64; 2]]) -> f64 {
+/// Expected information gain of observing the hypotheses' log concentrations at `points`,
+/// each observation's log-likelihood weighed by `weight` (the evidence weight).
+fn expected_gain(
+    hyp: &Hypotheses,
+    sampler: &FieldSampler,
+    points: &[[f64; 2]],
+    weight: f64,
+) -> f64 {
     let m = hyp.index.len();
     let mut row = vec![0.0f32; sampler.len()];
     let mut dist2 = vec![0.0f64; m * m];
@@ -274,7 +291,7 @@ fn expected_gain(hyp: &Hypotheses, sampler: &FieldSampler, points: &[[f64; 2]]) 
         }
     }
     let prior_h = entropy(&hyp.weight);
-    let scale = 0.5 / (OBS_SIGMA * OBS_SIGMA);
+    let scale = 0.5 * weight / (OBS_SIGMA * OBS_SIGMA);
     let expected_h: f64 = (0..m)
         .map(|k| {
             let log_w: Vec<f64> = (0..m)
@@ -306,13 +323,14 @@ fn best_by_path_gain(
     occupancy: &Occupancy,
     position: [f64; 2],
     goals: &[[f64; 2]],
+    weight: f64,
 ) -> Option<Plan> {
     goals
         .iter()
         .filter(|&&g| far_enough(position, g))
         .filter_map(|&goal| {
             let path = occupancy.plan(position, goal)?;
-            let gain = expected_gain(hyp, sampler, &path_points(&path));
+            let gain = expected_gain(hyp, sampler, &path_points(&path), weight);
             let score = gain / (path_length(&path) + ITERATION_COST_M);
             Some(Plan { goal, path, score })
         })
@@ -354,7 +372,7 @@ fn baseline(
         .collect();
     let gains: Vec<f64> = goals
         .iter()
-        .map(|&g| expected_gain(hyp, est.sampler(), &[g]))
+        .map(|&g| expected_gain(hyp, est.sampler(), &[g], est.params().evidence_weight))
         .collect();
     let dists: Vec<f64> = goals.iter().map(|g| (g[0] - mx).hypot(g[1] - my)).collect();
     let top_gain = gains.iter().copied().fold(0.0, f64::max).max(1e-12);
@@ -370,4 +388,50 @@ fn baseline(
             .plan(position, goal)
             .map(|path| Plan { goal, path, score })
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::Layout;
+    use crate::plume::{PhysicsSolver, PlumeModel};
+
+    /// Each observation's evidence weighs `weight`: a path sensed once at a weight gains what
+    /// the same path sensed twice at half of it gains (the log-likelihoods add), and without
+    /// the weight the twice-sensed path would gain more. Three sources side by side in a small
+    /// room, and two points downwind of them where their plumes overlap (so that no weight
+    /// tells the three apart for sure).
+    #[test]
+    fn each_observation_weighs_the_evidence_weight() {
+        let layout = Layout::from_json(
+            r#"{"width_m":4,"height_m":2,"cell_m":0.125,"wind":{"speed_mps":0.75}}"#,
+        )
+        .unwrap();
+        let candidates = [[0.5, 0.5], [0.5, 1.0], [0.5, 1.5]];
+        let bank = PhysicsSolver.bank(&layout, &candidates).unwrap();
+        let sampler = FieldSampler::new(&layout, &bank).unwrap();
+        let hyp = Hypotheses {
+            index: vec![0, 1, 2],
+            weight: vec![0.5, 0.25, 0.25],
+        };
+        let path = [[2.0, 0.5], [3.0, 0.5]];
+        let twice: Vec<[f64; 2]> = path.iter().flat_map(|&p| [p, p]).collect();
+        for weight in [1.0, 0.2, 0.01] {
+            let once = expected_gain(&hyp, &sampler, &path, weight);
+            let halves = expected_gain(&hyp, &sampler, &twice, weight / 2.0);
+            assert!(
+                once > 1e-4 && once < 0.9 * entropy(&hyp.weight),
+                "{weight}: {once}"
+            );
+            assert!(
+                (once - halves).abs() < 1e-9 * once,
+                "{weight}: {once} {halves}"
+            );
+            assert!(expected_gain(&hyp, &sampler, &twice, weight) > once * (1.0 + 1e-6));
+        }
+        // A weaker weight gains less from the same path here, and nothing from none.
+        let gain = |w: f64| expected_gain(&hyp, &sampler, &path, w);
+        assert!(gain(0.01) < gain(0.2) && gain(0.2) < gain(1.0));
+        assert_eq!(gain(0.0), 0.0);
+    }
 }

@@ -605,6 +605,28 @@ impl Estimator {
         plume_signal(&self.readings)
     }
 
+    /// Whether the estimate's plume reaches the plume the readings hold: the most probable
+    /// candidate's concentration under the most probable bank ([`Estimator::sampler`]) is at
+    /// least [`SteParams::detection_floor_ppm`] where at least one reading was taken that
+    /// stands `noises` noise levels above the readings' median (as [`plume_signal`] measures).
+    /// A candidate whose plume misses every such reading cannot have made them, however well
+    /// the readings' order fits it: a source whose plume the wind sweeps out of the room at
+    /// once leaves every reading's rank to the clean air. `false` without such a reading.
+    pub fn reaches_plume(&self, noises: f64) -> bool {
+        if self.readings.len() < 3 {
+            return false;
+        }
+        let median = crate::stats::median(&self.readings);
+        let level = median + noises * reading_noise(&self.readings);
+        let (k, sampler) = (self.map_index(), self.sampler());
+        let floor = self.params.detection_floor_ppm / self.params.ppm_per_unit;
+        self.readings
+            .iter()
+            .zip(&self.positions)
+            .filter(|&(&v, _)| v > median && v >= level)
+            .any(|(_, &[x, y])| f64::from(sampler.value(k, x, y)) >= floor)
+    }
+
     /// Shannon entropy of the posterior (nats).
     pub fn entropy(&self) -> f64 {
         entropy(&self.posterior)

@@ -20,7 +20,7 @@ use crate::ste::planner::{Planner, PlannerKind};
 use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
 use crate::ste::robot::{Occupancy, RobotParams};
 use crate::ste::sampler::FieldSampler;
-use crate::ste::termination::Termination;
+use crate::ste::termination::{PLUME_SIGNAL_NOISES, Termination};
 
 /// Mass of the credible region an iteration reports.
 pub const CREDIBLE_MASS: f64 = 0.9;
@@ -61,11 +61,15 @@ pub struct Iteration {
     /// when it explains the readings; `None` before the first reading.
     pub fit: Option<f64>,
     /// How far the highest reading stands above the readings' median, in noise levels
-    /// ([`Estimator::plume_signal`]): below
-    /// [`PLUME_SIGNAL_NOISES`](crate::ste::termination::PLUME_SIGNAL_NOISES) the robot has met
-    /// no plume yet, and the default rule does not stop.
+    /// ([`Estimator::plume_signal`]): below [`PLUME_SIGNAL_NOISES`] the robot has met no
+    /// plume yet, and the default rule does not stop.
     #[serde(default)]
     pub plume_signal: f64,
+    /// Whether the estimate's plume reaches a reading that holds the plume
+    /// ([`Estimator::reaches_plume`]): the default rule does not stop while it does not.
+    /// A reply without it reads as `false`.
+    #[serde(default)]
+    pub plume_reached: bool,
     /// The candidates of the smallest set holding 90% of the posterior, most probable first.
     pub credible_region: Vec<[f64; 2]>,
     /// Whether the termination rule holds.
@@ -275,6 +279,7 @@ impl Session {
             entropy: self.est.entropy(),
             fit: self.est.fit(),
             plume_signal: self.est.plume_signal(),
+            plume_reached: self.est.reaches_plume(PLUME_SIGNAL_NOISES),
             credible_region: region_cells(candidates, self.est.posterior(), CREDIBLE_MASS),
             converged: self.converged,
             done,

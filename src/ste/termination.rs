@@ -43,11 +43,13 @@ pub struct Termination {
     /// without this field reads as) checks the area alone.
     #[serde(default)]
     pub region_radius_m: Option<f64>,
-    /// When set, the belief counts as concentrated only once the readings hold a plume: their
-    /// highest stands at least [`PLUME_SIGNAL_NOISES`] noise levels above their median
-    /// ([`Estimator::plume_signal`]). Readings of clean air alone say where the source is not,
-    /// never where it is, so a run that has met no gas keeps exploring. `false` (what a record
-    /// without this field reads as) stops without it.
+    /// When set, the belief counts as concentrated only once the readings hold a plume that
+    /// the estimate explains: their highest stands at least [`PLUME_SIGNAL_NOISES`] noise
+    /// levels above their median ([`Estimator::plume_signal`]), and the estimate's plume
+    /// reaches at least one reading that high ([`Estimator::reaches_plume`]). Readings of
+    /// clean air alone say where the source is not, never where it is, so a run that has met
+    /// no gas keeps exploring, and so does one whose estimate could not have made the gas it
+    /// met. `false` (what a record without this field reads as) stops without it.
     #[serde(default)]
     pub require_plume: bool,
 }
@@ -85,7 +87,8 @@ pub const REGION_RADIUS_M: f64 = 1.5;
 impl Termination {
     /// The rule that goes with the estimator's settings: a tempered likelihood
     /// ([`SteParams::evidence_weight`] below 1), whose credible regions are calibrated, stops
-    /// when its 90% region covers at most [`TARGET_AREA_M2`] and the readings hold a plume;
+    /// when its 90% region covers at most [`TARGET_AREA_M2`] and the readings hold a plume
+    /// that the estimate's reaches;
     /// readings taken as independent (whose regions are over-confident) stop on the entropy
     /// rule alone, as the paper's.
     pub fn for_params(params: &SteParams) -> Self {
@@ -101,9 +104,12 @@ impl Termination {
     /// Whether the belief is concentrated: the credible region within the target area when
     /// one is set, and all of it within `region_radius_m` of the MAP cell when that is set;
     /// else entropy below the threshold and the credible set confined within `radius_m` of
-    /// the MAP cell; never before the readings hold a plume when that is required.
+    /// the MAP cell; never before the readings hold a plume that the estimate's plume reaches
+    /// when that is required.
     pub fn concentrated(&self, est: &Estimator) -> bool {
-        if est.is_empty() || self.require_plume && est.plume_signal() < PLUME_SIGNAL_NOISES {
+        let plume =
+            || est.plume_signal() >= PLUME_SIGNAL_NOISES && est.reaches_plume(PLUME_SIGNAL_NOISES);
+        if est.is_empty() || self.require_plume && !plume() {
             return false;
         }
         if let Some(target) = self.target_area_m2 {
