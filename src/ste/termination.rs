@@ -107,9 +107,8 @@ impl Termination {
     /// the MAP cell; never before the readings hold a plume that the estimate's plume reaches
     /// when that is required.
     pub fn concentrated(&self, est: &Estimator) -> bool {
-        let plume =
-            || est.plume_signal() >= PLUME_SIGNAL_NOISES && est.reaches_plume(PLUME_SIGNAL_NOISES);
-        if est.is_empty() || self.require_plume && !plume() {
+        // A reading that the estimate's plume reaches, that high, is a plume signal that high.
+        if est.is_empty() || self.require_plume && !est.reaches_plume(PLUME_SIGNAL_NOISES) {
             return false;
         }
         if let Some(target) = self.target_area_m2 {
