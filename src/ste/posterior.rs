@@ -613,11 +613,10 @@ impl Estimator {
     /// the readings' order fits it: a source whose plume the wind sweeps out of the room at
     /// once leaves every reading's rank to the clean air. `false` without such a reading.
     pub fn reaches_plume(&self, noises: f64) -> bool {
-        if self.readings.len() < 3 {
+        let Some((median, noise)) = median_and_noise(&self.readings) else {
             return false;
-        }
-        let median = crate::stats::median(&self.readings);
-        let level = median + noises * reading_noise(&self.readings);
+        };
+        let level = median + noises * noise;
         let (k, sampler) = (self.map_index(), self.sampler());
         let floor = self.params.detection_floor_ppm / self.params.ppm_per_unit;
         self.readings
@@ -744,12 +743,10 @@ fn reading_noise(values: &[f64]) -> f64 {
 /// fewer than three readings, infinite for noise-free readings that rise at all. Noise alone
 /// stays within a few levels; a plume the sensor met stands tens of them above.
 pub fn plume_signal(values: &[f64]) -> f64 {
-    if values.len() < 3 {
+    let Some((median, noise)) = median_and_noise(values) else {
         return 0.0;
-    }
-    let rise =
-        values.iter().copied().fold(f64::NEG_INFINITY, f64::max) - crate::stats::median(values);
-    let noise = reading_noise(values);
+    };
+    let rise = values.iter().copied().fold(f64::NEG_INFINITY, f64::max) - median;
     if rise <= 0.0 {
         0.0
     } else if noise > 0.0 {
@@ -757,6 +754,12 @@ pub fn plume_signal(values: &[f64]) -> f64 {
     } else {
         f64::INFINITY
     }
+}
+
+/// The readings' median and noise level ([`reading_noise`]), what [`plume_signal`] and
+/// [`Estimator::reaches_plume`] measure a plume against; `None` for fewer than three readings.
+fn median_and_noise(values: &[f64]) -> Option<(f64, f64)> {
+    (values.len() >= 3).then(|| (crate::stats::median(values), reading_noise(values)))
 }
 
 /// Shifts log weights so that their exponentials sum to 1.
