@@ -207,11 +207,17 @@ fn records_without_the_new_fields_stay_readable() {
     use plumenet::study::experiment::RunRow;
     let rank = SteParams::for_feature(Feature::Rank);
     let mut v = serde_json::to_value(rank).unwrap();
-    for key in ["evidence_weight", "fit_reference", "background_odds"] {
+    for key in [
+        "evidence_weight",
+        "fit_reference",
+        "background_odds",
+        "model_rank_factor",
+    ] {
         v.as_object_mut().unwrap().remove(key).unwrap();
     }
     let old: SteParams = serde_json::from_value(v).unwrap();
     assert_eq!((old.evidence_weight, old.fit_reference), (1.0, None));
+    assert_eq!(old.rank.model_rank_factor, 1.0, "exact model ranks");
     assert_eq!(old.background_odds, None);
     assert_eq!(old.background_odds(), 1.0, "all three rises equally likely");
     // The calibrated default makes a rise unlikely; set, the odds stay what they are.
@@ -221,6 +227,31 @@ fn records_without_the_new_fields_stay_readable() {
         ..rank
     };
     assert_eq!(set.background_odds(), 0.5);
+    // The tempered likelihood knows no model's ranks closer than its floor; independent
+    // readings take the model's own factor, and a wider one stays.
+    assert_eq!(rank.rank.model_rank_factor, 1.5);
+    for (weight, own, expected) in [
+        (0.2, 1.0, 1.5),
+        (0.2, 3.0, 3.0),
+        (1.0, 1.0, 1.0),
+        (1.0, 3.0, 3.0),
+    ] {
+        let p = SteParams {
+            evidence_weight: weight,
+            ..rank
+        };
+        assert_eq!(
+            p.rank_factor_for(own),
+            expected,
+            "weight {weight}, own {own}"
+        );
+    }
+    assert_eq!(
+        SteParams::for_model(Feature::Rank, 3.0)
+            .rank
+            .model_rank_factor,
+        3.0
+    );
     let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
     assert_eq!(t["target_area_m2"], 1.0);
     assert_eq!(t["region_radius_m"], 1.5);

@@ -440,10 +440,13 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
         .unwrap();
     let source = [4.625, 2.375];
     assert!(world.room.sampler.candidates().contains(&source));
-    // Readings taken as independent evidence: the nuisance's posterior is asked to pick the
-    // speed from one survey, which the tempered default weighs five times less.
+    // Readings taken as independent evidence, with the solver's exact ranks that go with
+    // them: the nuisance's posterior is asked to pick the speed from one survey, which the
+    // tempered default weighs five times less.
     let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     config.ste.evidence_weight = 1.0;
+    config.ste.rank.model_rank_factor = config.ste.rank_factor_for(1.0);
+    assert_eq!(config.ste.rank.model_rank_factor, 1.0);
     assert_eq!(config.ste.background_rise, 0.5);
     let lag_in_c = config.ste.lag_in_concentration();
     assert_eq!(

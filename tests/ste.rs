@@ -873,7 +873,10 @@ fn noise_free_stop_sense_go_with_the_solver_lands_within_one_cell() {
 /// intermittency of a well-mixed plume: nine hard runs of the tuning seeds (`experiment --solver
 /// --runs 200 --seed 1000`, rank, Sensor II). Without the rank tolerance the belief settles on
 /// a spot near the robot whose steep predicted gradient fits those fluctuations; the default
-/// tolerance finds the source (within 1 m) in more of them.
+/// tolerance finds the source (within 1 m) in more of them. The solver's ranks are taken as
+/// exact here, as independent readings take them: the tempered default's expected ranks
+/// (factor 1.5) flatten those gradients too, and find the sources with or without the
+/// tolerance.
 #[test]
 fn rank_tolerance_finds_upwind_sources_from_downwind_starts() {
     let cases: [([f64; 2], [f64; 2], u64); 9] = [
@@ -926,6 +929,7 @@ fn rank_tolerance_finds_upwind_sources_from_downwind_starts() {
     let found = |rank_tolerance: f64| -> Vec<f64> {
         let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
         config.ste.rank.rank_tolerance = rank_tolerance;
+        config.ste.rank.model_rank_factor = 1.0;
         cases
             .iter()
             .map(|&(source, start, seed)| {

@@ -170,7 +170,8 @@ pub struct FeatureArgs {
     rank_tolerance: f64,
     /// Rank only: the factor within which the plume model's concentrations are known when
     /// ranked; each candidate's expected ranks under that uncertainty are compared (default:
-    /// the model's own, 3 for PlumeNet and 1 for the solver; 1 compares exact ranks).
+    /// 3 for PlumeNet; for the solver 1.5, or 1 with `--evidence-weight 1`; 1 compares exact
+    /// ranks).
     #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     model_rank_factor: Option<f64>,
     /// Rank only, with the background nuisance: the nuisance's estimates of the background
@@ -271,9 +272,6 @@ impl FeatureArgs {
             p.sensor_lag_s = None;
         }
         p.rank.rank_tolerance = self.rank_tolerance;
-        if let Some(factor) = self.model_rank_factor {
-            p.rank.model_rank_factor = factor;
-        }
         p.rank.clean_air_window_s = self.clean_air_window;
         p.rank.clean_air_model_ties = self.clean_air_model_ties;
         p.rank.clean_air_rank_floor = self.clean_air_rank_floor;
@@ -288,6 +286,10 @@ impl FeatureArgs {
         if let Some(w) = self.evidence_weight {
             p.evidence_weight = w;
         }
+        // The model's factor resolved after the weight, whose floor goes with it.
+        p.rank.model_rank_factor = self
+            .model_rank_factor
+            .unwrap_or_else(|| p.rank_factor_for(rank_factor));
         if self.fit_reference.is_some() {
             p.fit_reference = self.fit_reference;
         }

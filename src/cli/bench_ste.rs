@@ -78,10 +78,10 @@ pub fn bench_ste(a: BenchSteArgs) -> Result<()> {
         .into_iter()
         .chain([
             (
-                "rank-expected",
+                "rank-exact",
                 SteParams {
                     rank: RankParams {
-                        model_rank_factor: plumenet::surrogate::inference::RANK_FACTOR,
+                        model_rank_factor: 1.0,
                         ..rank.rank
                     },
                     ..rank

@@ -92,7 +92,7 @@ impl Termination {
     /// readings taken as independent (whose regions are over-confident) stop on the entropy
     /// rule alone, as the paper's.
     pub fn for_params(params: &SteParams) -> Self {
-        let tempered = params.evidence_weight < 1.0;
+        let tempered = params.tempered();
         Self {
             target_area_m2: tempered.then_some(TARGET_AREA_M2),
             region_radius_m: tempered.then_some(REGION_RADIUS_M),
