@@ -1106,7 +1106,7 @@ fn bad_likelihood_settings_fail_before_the_bank() {
         ),
         (
             &["serve", "--fit-reference", "-1"][..],
-            "the fit reference must be positive, got Some(-1.0)",
+            "the fit reference must be a positive number, got -1",
         ),
         (
             &["localize", "--source", "4.5,2.5", "--background-odds", "0"][..],

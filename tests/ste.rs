@@ -1492,7 +1492,20 @@ fn drifting_clean_air_ties_follow_a_slow_drift() {
     let mut params = SteParams::for_feature(Feature::Rank);
     params.rank.clean_air_window_s = Some(-1.0);
     let err = Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap_err();
-    assert!(err.to_string().contains("clean-air window"), "{err}");
+    assert!(
+        err.to_string()
+            .ends_with("the clean-air window must be a positive number of seconds, got -1"),
+        "{err}"
+    );
+    let mut params = SteParams::for_feature(Feature::Rank);
+    params.sensor_lag_s = Some([f64::NAN, 4.6]);
+    let err = Estimator::new(Arc::clone(&world().room.sampler), &support(), params).unwrap_err();
+    assert!(
+        err.to_string().ends_with(
+            "sensor time constants must be positive numbers of seconds, got NaN and 4.6"
+        ),
+        "{err}"
+    );
 }
 
 /// A live session: readings in any batches give the posterior `replay` gives for them, bad

@@ -348,13 +348,12 @@ impl SteParams {
                 self.sigmas
             )));
         }
-        if self
+        if let Some([rise, fall]) = self
             .sensor_lag_s
-            .is_some_and(|t| t.iter().any(|v| !(v.is_finite() && *v > 0.0)))
+            .filter(|t| t.iter().any(|v| !(v.is_finite() && *v > 0.0)))
         {
             return Err(Error::Parameter(format!(
-                "sensor time constants must be positive, got {:?}",
-                self.sensor_lag_s
+                "sensor time constants must be positive numbers of seconds, got {rise} and {fall}"
             )));
         }
         if !(self.detection_floor_ppm.is_finite() && self.detection_floor_ppm >= 0.0) {
@@ -363,14 +362,13 @@ impl SteParams {
                 self.detection_floor_ppm
             )));
         }
-        if self
+        if let Some(w) = self
             .rank
             .clean_air_window_s
-            .is_some_and(|w| !(w.is_finite() && w > 0.0))
+            .filter(|w| !(w.is_finite() && *w > 0.0))
         {
             return Err(Error::Parameter(format!(
-                "the clean-air window must be a positive number of seconds, got {:?}",
-                self.rank.clean_air_window_s
+                "the clean-air window must be a positive number of seconds, got {w}"
             )));
         }
         if !(self.sensor_lag_exponent.is_finite()
@@ -429,13 +427,9 @@ impl SteParams {
                 self.evidence_weight
             )));
         }
-        if self
-            .fit_reference
-            .is_some_and(|r| !(r.is_finite() && r > 0.0))
-        {
+        if let Some(r) = self.fit_reference.filter(|r| !(r.is_finite() && *r > 0.0)) {
             return Err(Error::Parameter(format!(
-                "the fit reference must be positive, got {:?}",
-                self.fit_reference
+                "the fit reference must be a positive number, got {r}"
             )));
         }
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
