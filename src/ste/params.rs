@@ -198,7 +198,7 @@ impl SteParams {
     pub fn for_feature(feature: Feature) -> Self {
         // The source strength and the time constants are the sensor type's, not a calibration.
         let sensor = MoxParams::for_preset(SensorPreset::SensorII);
-        Self {
+        let mut params = Self {
             feature,
             features: FeatureParams::default(),
             sigmas: Sigmas::default_for(feature),
@@ -218,10 +218,7 @@ impl SteParams {
                 clean_air_rank_floor: false,
                 clean_air_window_s: None,
                 rank_tolerance: RANK_TOLERANCE,
-                model_rank_factor: match feature {
-                    Feature::Rank => TEMPERED_RANK_FACTOR,
-                    _ => exact_model_ranks(),
-                },
+                model_rank_factor: exact_model_ranks(),
             },
             background_rise: match feature {
                 Feature::Rank => BACKGROUND_RISE,
@@ -235,7 +232,10 @@ impl SteParams {
                 _ => independent_readings(),
             },
             fit_reference: None,
-        }
+        };
+        // The floor of a tempered likelihood applies to exact models too.
+        params.rank.model_rank_factor = params.rank_factor_for(exact_model_ranks());
+        params
     }
 
     /// The defaults for a feature with a plume model whose concentrations are known within
