@@ -443,6 +443,9 @@ fn localize_writes_the_run_and_its_pictures() {
     // the tempered likelihood knows its ranks within 1.5, independent readings exactly;
     // PlumeNet's are known within its own factor, unless the flag says otherwise.
     assert_eq!(run["config"]["ste"]["model_rank_factor"], 1.5);
+    // The tempered likelihood checks the exact solver's fit against 0.02 (none for PlumeNet,
+    // whose own error widens its posterior, nor with independent readings).
+    assert_eq!(run["config"]["ste"]["fit_reference"], 0.02);
     // Rank marginalises a rising background by default (rises 0, 0.25 and 0.5 fully mixed).
     assert_eq!(run["config"]["ste"]["background_rise"], 0.5);
     assert_eq!(run["backgrounds"].as_array().unwrap().len(), 3);
@@ -452,23 +455,33 @@ fn localize_writes_the_run_and_its_pictures() {
     assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], response);
     assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 0.2);
     let surrogate_json = tmp.path().join("plumenet.json");
-    // (flags, model rank factor, background rise, lag exponent, detection floor)
-    for (flags, factor, rise, exponent, floor) in [
-        (&[][..], 3.0, 0.5, response, 0.2),
+    // (flags, model rank factor, background rise, lag exponent, detection floor, fit reference)
+    let none = serde_json::Value::Null;
+    for (flags, factor, rise, exponent, floor, fit) in [
+        (&[][..], 3.0, 0.5, response, 0.2, none.clone()),
         (
             &["--model-rank-factor", "1.5", "--background-rise", "0"][..],
             1.5,
             0.0,
             response,
             0.2,
+            none.clone(),
         ),
-        (&["--feature", "value"][..], 3.0, 0.0, 1.0, 1.0),
+        (
+            &["--feature", "value"][..],
+            3.0,
+            0.0,
+            1.0,
+            1.0,
+            none.clone(),
+        ),
         (
             &["--solver", "--evidence-weight", "1"][..],
             1.0,
             0.5,
             response,
             0.2,
+            none.clone(),
         ),
         (
             &["--solver", "--model-rank-factor", "1"][..],
@@ -476,15 +489,40 @@ fn localize_writes_the_run_and_its_pictures() {
             0.5,
             response,
             0.2,
+            0.02.into(),
         ),
-        (&["--evidence-weight", "1"][..], 3.0, 0.5, response, 0.2),
-        (&["--paper-rank"][..], 1.0, 0.0, 1.0, 1.0),
+        (
+            &["--solver", "--no-fit-check"][..],
+            1.5,
+            0.5,
+            response,
+            0.2,
+            none.clone(),
+        ),
+        (
+            &["--fit-reference", "0.03"][..],
+            3.0,
+            0.5,
+            response,
+            0.2,
+            0.03.into(),
+        ),
+        (
+            &["--evidence-weight", "1"][..],
+            3.0,
+            0.5,
+            response,
+            0.2,
+            none.clone(),
+        ),
+        (&["--paper-rank"][..], 1.0, 0.0, 1.0, 1.0, none.clone()),
         (
             &["--lag-exponent", "1", "--detection-floor", "1"][..],
             3.0,
             0.5,
             1.0,
             1.0,
+            none.clone(),
         ),
         (
             &["--paper-rank", "--lag-exponent", "0.5"][..],
@@ -492,6 +530,7 @@ fn localize_writes_the_run_and_its_pictures() {
             0.0,
             0.5,
             1.0,
+            none.clone(),
         ),
     ] {
         let mut args = vec![
@@ -522,6 +561,7 @@ fn localize_writes_the_run_and_its_pictures() {
             run["config"]["ste"]["detection_floor_ppm"], floor,
             "{flags:?}"
         );
+        assert_eq!(run["config"]["ste"]["fit_reference"], fit, "{flags:?}");
     }
 
     let iterations = run["iterations"].as_u64().unwrap() as usize;

@@ -252,6 +252,25 @@ fn records_without_the_new_fields_stay_readable() {
             .model_rank_factor,
         3.0
     );
+    // The fit check goes with the tempered likelihood and an exact model only.
+    assert_eq!(rank.fit_reference, Some(0.02));
+    for (weight, own, expected) in [
+        (0.2, 1.0, Some(0.02)),
+        (0.2, 3.0, None),
+        (1.0, 1.0, None),
+        (1.0, 3.0, None),
+    ] {
+        let p = SteParams {
+            evidence_weight: weight,
+            ..rank
+        };
+        assert_eq!(
+            p.fit_reference_for(own),
+            expected,
+            "weight {weight}, own {own}"
+        );
+    }
+    assert_eq!(SteParams::for_model(Feature::Rank, 3.0).fit_reference, None);
     let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
     assert_eq!(t["target_area_m2"], 1.0);
     assert_eq!(t["region_radius_m"], 1.5);

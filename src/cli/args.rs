@@ -232,7 +232,8 @@ pub struct FeatureArgs {
     )]
     background_odds: Option<f64>,
     /// Take the readings' noise level from the data: a best fit worse than this reference
-    /// weighs every reading down by their ratio.
+    /// weighs every reading down by their ratio [default: 0.02 for the solver with a
+    /// tempered likelihood, else none].
     #[arg(
         long,
         hide_short_help = true,
@@ -240,11 +241,20 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     fit_reference: Option<f64>,
+    /// Weigh the readings by the evidence weight alone, without the fit check's
+    /// (`--fit-reference`) default.
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        conflicts_with = "fit_reference"
+    )]
+    no_fit_check: bool,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
     /// sensor's response with its lower floor (the other features' lag and floor instead);
     /// exactly invariant under every increasing transform of the readings.
-    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "background_odds", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander"])]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "background_odds", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander", "fit_reference"])]
     paper_rank: bool,
 }
 
@@ -290,9 +300,13 @@ impl FeatureArgs {
         p.rank.model_rank_factor = self
             .model_rank_factor
             .unwrap_or_else(|| p.rank_factor_for(rank_factor));
-        if self.fit_reference.is_some() {
-            p.fit_reference = self.fit_reference;
-        }
+        // The fit check's default goes with the weight and the model, as the factor's does.
+        p.fit_reference = match self.no_fit_check {
+            true => None,
+            false => self
+                .fit_reference
+                .or_else(|| p.fit_reference_for(rank_factor)),
+        };
         if self.paper_rank {
             p = p.papers_rank();
         }
