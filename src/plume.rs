@@ -177,11 +177,10 @@ pub trait PlumeModel {
     /// [`Error::Source`] for a candidate outside free space, or the model's own failures.
     fn bank(&self, layout: &Layout, candidates: &[[f64; 2]]) -> Result<PlumeBank>;
 
-    /// The factor within which the model's mean concentrations are known in `layout`, as the
-    /// rank feature's expected ranks take it
-    /// ([`crate::ste::params::RankParams::model_rank_factor`]): 1, exact, unless the model
-    /// says otherwise.
-    fn rank_factor(&self, _layout: &Layout) -> f64 {
+    /// The factor within which the model's mean concentrations are known, as the rank
+    /// feature's expected ranks take it ([`crate::ste::params::RankParams::model_rank_factor`]): 1, exact,
+    /// unless the model says otherwise.
+    fn rank_factor(&self) -> f64 {
         1.0
     }
 }

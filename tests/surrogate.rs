@@ -888,51 +888,6 @@ fn the_any_room_model_predicts_an_unseen_room_and_refuses_a_too_long_one() {
     assert!(err.contains("30"), "{err}");
 }
 
-/// PlumeNet's rank factor is 3 in rooms of a size class where its validation error is at
-/// most its overall one, and widens, its logarithm in proportion to the error, where it is
-/// larger: with the shipped model's figures, 3 in the paper's arena and the office, wider in the
-/// 30 m x 12 m hall; a model without the figures, or with broken ones, keeps 3.
-#[test]
-fn plumenets_rank_factor_grows_with_its_validation_error_by_room_size() {
-    use plumenet::plume::PlumeModel;
-    use plumenet::surrogate::inference::{RANK_FACTOR, rank_factor_for_error};
-    assert_eq!(RANK_FACTOR, 3.0);
-    for (overall, class, expected) in [
-        (Some(0.2), Some(0.1), 3.0),
-        (Some(0.2), Some(0.2), 3.0),
-        (Some(0.2), Some(0.3), 3f64.powf(1.5)),
-        (Some(0.2), None, 3.0),
-        (None, Some(0.3), 3.0),
-        (Some(0.0), Some(0.3), 3.0),
-        (Some(f64::NAN), Some(0.3), 3.0),
-        (Some(0.2), Some(f64::INFINITY), 3.0),
-    ] {
-        let got = rank_factor_for_error(overall, class);
-        assert!(
-            (got - expected).abs() < 1e-12,
-            "{overall:?} {class:?}: {got}"
-        );
-    }
-    let dir = crate::common::repo_path("models/default");
-    let model = Surrogate::load(&dir).unwrap();
-    let config: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("config.json")).unwrap()).unwrap();
-    let best = &config["best"];
-    let overall = best["validation_relative_l2"].as_f64().unwrap();
-    let large = best["validation_relative_l2_by_size"][2].as_f64().unwrap();
-    assert!(large > overall, "the shipped model is worst in large rooms");
-    let room = |path: &str| Layout::load(&crate::common::repo_path(path)).unwrap();
-    for path in [
-        "data/layouts/wind-tunnel.json",
-        "data/layouts/rooms/office-9.25x7.5.json",
-    ] {
-        assert_eq!(model.rank_factor(&room(path)), 3.0, "{path}");
-    }
-    let hall = model.rank_factor(&room("data/layouts/rooms/hall-30x12.json"));
-    assert!((hall - 3f64.powf(large / overall)).abs() < 1e-12, "{hall}");
-    assert!(hall > 3.5 && hall < 4.0, "{hall}");
-}
-
 /// The training loss with a relative-L2 term is the transformed target's masked MSE plus the
 /// weight times the mean over maps of the squared relative L2 error of `exp(y) - 1` over free
 /// cells (brute force); with weight 0 it is the masked MSE alone.

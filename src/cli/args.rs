@@ -92,7 +92,7 @@ impl PlumeArgs {
         quiet: bool,
     ) -> Result<(RoomBanks, ValidSteParams, Box<dyn PlumeModel>)> {
         let model = self.model()?;
-        let params = features.params(feature, model.rank_factor(&layout))?;
+        let params = features.params(feature, model.rank_factor())?;
         let (room, note) = self.room_of(layout, model.as_ref())?;
         if quiet {
             eprintln!("{note}");

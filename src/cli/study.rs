@@ -276,13 +276,13 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
     Ok(())
 }
 
-/// What runs a study's runs: the plume models, loaded, and the likelihood's flags, whose
-/// settings are checked for each room, model and feature before any bank.
+/// What runs a study's runs: the plume models, loaded, and every feature's settings checked
+/// with each of them, before any bank.
 struct Runner<'a> {
     loaded: Vec<Box<dyn PlumeModel>>,
+    settings: Vec<Vec<ValidSteParams>>,
     features: &'a [Feature],
     plume: &'a PlumeArgs,
-    overrides: &'a FeatureArgs,
     run: &'a RunArgs,
 }
 
@@ -304,40 +304,25 @@ impl<'a> Runner<'a> {
             .iter()
             .map(|&name| plume.model_of(name == "solver"))
             .collect::<Result<Vec<_>>>()?;
+        let settings = loaded
+            .iter()
+            .map(|model| {
+                let of = |&f| overrides.params(f, model.rank_factor());
+                features.iter().map(of).collect::<Result<Vec<_>>>()
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Self {
             loaded,
+            settings,
             features,
             plume,
-            overrides,
             run,
         })
     }
 
-    /// Every feature's settings with each plume model in each of the study's rooms, whose
-    /// plume model's rank factor may depend on the room ([`PlumeModel::rank_factor`]):
-    /// `[site][model][feature]`.
-    fn settings(&self, study: &Study<'_>) -> Result<Vec<Vec<Vec<ValidSteParams>>>> {
-        let in_room = |layout: &Layout| {
-            let of_model = |model: &dyn PlumeModel| {
-                let of = |&f| self.overrides.params(f, model.rank_factor(layout));
-                self.features.iter().map(of).collect::<Result<Vec<_>>>()
-            };
-            self.loaded
-                .iter()
-                .map(|model| of_model(model.as_ref()))
-                .collect::<Result<Vec<_>>>()
-        };
-        study
-            .sites
-            .iter()
-            .map(|(_, layout)| in_room(layout))
-            .collect()
-    }
-
     /// Runs a study with the bar counting its runs.
     fn run(&self, study: &Study<'_>, bar: &indicatif::ProgressBar) -> Result<Vec<RunRow>> {
-        let (features, run) = (self.features, self.run);
-        let settings = self.settings(study)?;
+        let (features, settings, run) = (self.features, &self.settings, self.run);
         let rows = study.run(
             |layout, k| {
                 let (room, note) = self
@@ -346,9 +331,9 @@ impl<'a> Runner<'a> {
                 super::say(bar, note);
                 Ok::<_, anyhow::Error>(room)
             },
-            |site, f, s, k| {
+            |f, s, k| {
                 let at = features.iter().position(|&g| g == f);
-                let params = at.map(|i| settings[site][k][i]).expect("a planned feature");
+                let params = at.map(|i| settings[k][i]).expect("a planned feature");
                 run.config(params, s)
             },
             || bar.inc(1),
@@ -389,10 +374,7 @@ pub fn calibration(a: CalibrationArgs) -> Result<()> {
     let robot = a
         .estimator
         .run
-        .config(
-            SteParams::for_feature(Feature::Rank).validate()?,
-            SensorPreset::SensorII,
-        )
+        .config(runner.settings[0][0], SensorPreset::SensorII)
         .robot;
     let plans: Vec<_> = suites
         .iter()

@@ -74,13 +74,12 @@ impl RoomBanks {
             )));
         }
         let (sampler, hit) = sampler_of(model, &layout, &candidates, cache)?;
-        let model_rank_factor = model.rank_factor(&layout);
         Ok((
             Self {
                 layout,
                 banks: vec![Bank::plain(Arc::clone(&sampler))],
                 sampler,
-                model_rank_factor,
+                model_rank_factor: model.rank_factor(),
             },
             hit,
         ))

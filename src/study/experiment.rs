@@ -534,20 +534,19 @@ impl Study<'_> {
     }
 
     /// Runs the study: `room` gives a site's banks for a plume model (its index in
-    /// [`Study::models`]), `configure` a run's settings for a site (its index in
-    /// [`Study::sites`]), feature, sensor and plume model (that index), and `done` is called
-    /// after each run. Rows come back site by site, model by model, reality by reality, in plan order.
+    /// [`Study::models`]), `configure` a run's settings for a feature, sensor and plume model
+    /// (that index), and `done` is called after each run. Rows come back site by site, model by model, reality by reality, in plan order.
     ///
     /// # Errors
     /// The banks' errors (of the caller's type `E`), the surveys' and the runs' errors.
     pub fn run<E: From<Error>>(
         &self,
         mut room: impl FnMut(&Layout, usize) -> std::result::Result<RoomBanks, E>,
-        configure: impl Fn(usize, Feature, SensorPreset, usize) -> EpisodeConfig + Sync,
+        configure: impl Fn(Feature, SensorPreset, usize) -> EpisodeConfig + Sync,
         done: impl Fn() + Sync,
     ) -> std::result::Result<Vec<RunRow>, E> {
         let mut rows = Vec::with_capacity(self.total_runs());
-        for (index, (name, layout)) in self.sites.iter().enumerate() {
+        for (name, layout) in self.sites {
             let survey;
             let paths = match self.paths {
                 PathsRule::Planner(rule) => Paths::Planner(rule),
@@ -570,7 +569,7 @@ impl Study<'_> {
                         site,
                         self.plan,
                         self.seed,
-                        |f, s| configure(index, f, s, k),
+                        |f, s| configure(f, s, k),
                         &done,
                     )?);
                 }

@@ -6,7 +6,7 @@ use burn::prelude::*;
 use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 
-use super::data::{RoomPlanes, padded_shape, size_class};
+use super::data::{RoomPlanes, padded_shape};
 use super::head::{self, FusedHead, RoomTerms, SourceTables};
 use super::model::{ConvImpl, PlumeNet, ROOM_CHANNELS};
 use super::saved::{LEGACY_MODEL_FORMAT, SavedModel};
@@ -382,35 +382,15 @@ fn canonical_sources(frame: &Frame, sources: &[[f64; 2]]) -> Vec<[f64; 2]> {
         .collect()
 }
 
-/// The factor within which PlumeNet's concentrations are known when ranked in a room of its
-/// typical error: its relative error is about a fifth to a third of the field
-/// (`docs/plumenet.md`), more far downwind, where the plume is flat and a small error reverses
-/// the order of two cells. Chosen on the STE's tuning seeds (`docs/method.md`).
+/// The factor within which PlumeNet's concentrations are known when ranked: its relative
+/// error is about a fifth to a third of the field (`docs/plumenet.md`), more far downwind,
+/// where the plume is flat and a small error reverses the order of two cells. Chosen on the
+/// STE's tuning seeds (`docs/method.md`).
 pub const RANK_FACTOR: f64 = 3.0;
 
-/// The rank factor of a model whose held-out maps' median relative L2 error is `overall`, in
-/// a room size class where it is `class` (`config.json`'s kept epoch): [`RANK_FACTOR`] where
-/// the class's error is at most the overall one, and where it is larger a factor whose
-/// logarithm grows with it, `RANK_FACTOR^(class / overall)`: the factor chosen for the typical
-/// room widens where the model is known to be worse, and never narrows below what the tuning
-/// runs support (`docs/calibration.md`). Without both figures, [`RANK_FACTOR`].
-pub fn rank_factor_for_error(overall: Option<f64>, class: Option<f64>) -> f64 {
-    match (overall, class) {
-        (Some(e), Some(c)) if e.is_finite() && c.is_finite() && e > 0.0 && c > e => {
-            RANK_FACTOR.powf(c / e)
-        }
-        _ => RANK_FACTOR,
-    }
-}
-
 impl PlumeModel for Surrogate {
-    fn rank_factor(&self, layout: &Layout) -> f64 {
-        let best = self.saved.best.as_ref();
-        rank_factor_for_error(
-            best.and_then(|b| b.validation_relative_l2),
-            best.and_then(|b| b.validation_relative_l2_by_size)
-                .and_then(|by_size| by_size[size_class(layout)]),
-        )
+    fn rank_factor(&self) -> f64 {
+        RANK_FACTOR
     }
 
     fn name(&self) -> String {
