@@ -198,6 +198,12 @@ impl SteParams {
     /// The defaults for a feature with a plume model whose concentrations are exact (the
     /// solver's; [`SteParams::for_model`] takes another model's rank factor).
     pub fn for_feature(feature: Feature) -> Self {
+        Self::for_model(feature, exact_model_ranks())
+    }
+
+    /// The defaults for a feature with a plume model whose concentrations are known within
+    /// `rank_factor` when ranked ([`crate::plume::PlumeModel::rank_factor`]).
+    pub fn for_model(feature: Feature, rank_factor: f64) -> Self {
         // The source strength and the time constants are the sensor type's, not a calibration.
         let sensor = MoxParams::for_preset(SensorPreset::SensorII);
         let mut params = Self {
@@ -220,7 +226,7 @@ impl SteParams {
                 clean_air_rank_floor: false,
                 clean_air_window_s: None,
                 rank_tolerance: RANK_TOLERANCE,
-                model_rank_factor: exact_model_ranks(),
+                model_rank_factor: rank_factor,
             },
             background_rise: match feature {
                 Feature::Rank => BACKGROUND_RISE,
@@ -235,16 +241,8 @@ impl SteParams {
             },
             fit_reference: None,
         };
-        // The floor of a tempered likelihood applies to exact models too.
-        params.rank.model_rank_factor = params.rank_factor_for(exact_model_ranks());
-        params.fit_reference = params.fit_reference_for(exact_model_ranks());
-        params
-    }
-
-    /// The defaults for a feature with a plume model whose concentrations are known within
-    /// `rank_factor` when ranked ([`crate::plume::PlumeModel::rank_factor`]).
-    pub fn for_model(feature: Feature, rank_factor: f64) -> Self {
-        let mut params = Self::for_feature(feature);
+        // The model's factor and fit check go with the weight (the floor of a tempered
+        // likelihood applies to exact models too).
         params.rank.model_rank_factor = params.rank_factor_for(rank_factor);
         params.fit_reference = params.fit_reference_for(rank_factor);
         params
