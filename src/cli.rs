@@ -20,7 +20,7 @@ use plumenet::report::{FieldPanel, FieldPlot, Panel, save_figure};
 use plumenet::surrogate::config::{Selection, WarmStart};
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
 use plumenet::surrogate::eval::{EvalSettings, Summary, evaluate};
-use plumenet::surrogate::model::{OperatorConfig, ROOM_CHANNELS};
+use plumenet::surrogate::model::{CoarseConfig, OperatorConfig, ROOM_CHANNELS};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
 
 mod args;
@@ -132,6 +132,14 @@ struct TrainArgs {
     /// --init-from a U-Net, its body starts from the U-Net's weights.
     #[arg(long, conflicts_with = "prior_skip")]
     operator: bool,
+    /// With --operator, its coarse form: each source runs a small U-Net at 0.5 m cells that
+    /// corrects the analytic prior, reading the room's planes there (docs/plumenet.md).
+    #[arg(long, requires = "operator")]
+    coarse: bool,
+    /// Channels per level of the coarse per-source network, shallow to deep, comma-separated
+    /// (default 8,16,32: three levels, at 0.5, 1 and 2 m cells).
+    #[arg(long, value_delimiter = ',', requires = "coarse")]
+    coarse_filters: Option<Vec<usize>>,
     /// Start from this trained model's weights (its architecture and inputs too) instead of
     /// random ones, e.g. to continue a model on more or other data.
     #[arg(long)]
@@ -628,6 +636,20 @@ pub(crate) fn export_dir(prefix: &str) -> Result<tempfile::TempDir> {
         .context("cannot create a temporary directory for the reference exports")
 }
 
+/// The operator network of `train --operator`, of the coarse form with `--coarse` (its room
+/// planes doubled: they are all the room gives each source; `filters` its per-source
+/// network's, if given).
+fn operator_config(coarse: bool, filters: Option<Vec<usize>>) -> OperatorConfig {
+    let op = OperatorConfig::new();
+    if !coarse {
+        return op;
+    }
+    let per_source = CoarseConfig::new();
+    let filters = filters.unwrap_or_else(|| per_source.filters.clone());
+    op.with_room_planes(16)
+        .with_coarse(Some(per_source.with_filters(filters)))
+}
+
 fn train(a: TrainArgs) -> Result<()> {
     let dirs: Vec<&Path> = a.data.iter().map(PathBuf::as_path).collect();
     let data = TrainingData::load_all(&dirs)?;
@@ -652,7 +674,10 @@ fn train(a: TrainArgs) -> Result<()> {
             } else {
                 inputs.channels()
             })
-            .with_operator(a.operator.then(OperatorConfig::new))
+            .with_operator(
+                a.operator
+                    .then(|| operator_config(a.coarse, a.coarse_filters.clone())),
+            )
             .with_filters(
                 a.filters
                     .clone()
@@ -681,7 +706,7 @@ fn train(a: TrainArgs) -> Result<()> {
                 .model
                 .with_in_channels(ROOM_CHANNELS)
                 .with_prior_skip(None)
-                .with_operator(Some(OperatorConfig::new()));
+                .with_operator(Some(operator_config(a.coarse, a.coarse_filters.clone())));
         }
         if let Some(filters) = &a.filters {
             config.model.filters = filters.clone();

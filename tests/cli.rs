@@ -1340,6 +1340,41 @@ fn the_dataset_and_model_commands_run_end_to_end() {
         (bench["model_over_solver"].as_f64().unwrap() - model / solver).abs() < 1e-9,
         "{bench}"
     );
+
+    // So does its coarse form (five levels: the room's U-Net decodes to level 2, where a
+    // per-source network of two levels pools once); `--coarse` without `--operator` is
+    // refused.
+    let (merged, coarse_dir) = (dir("merged"), dir("coarse"));
+    let coarse = |extra: &[&str]| {
+        let mut args = vec![
+            "train",
+            "--data",
+            &merged,
+            "--out",
+            &coarse_dir,
+            "--epochs",
+            "1",
+            "--filters",
+            "4,4,4,4,4",
+            "--batch-size",
+            "3",
+            "--coarse",
+        ];
+        args.extend_from_slice(extra);
+        plumenet(&args)
+    };
+    assert_clean_failure(&coarse(&[]), "--operator");
+    assert!(
+        coarse(&["--operator", "--coarse-filters", "4,6"])
+            .status
+            .success()
+    );
+    let saved = read_json(tmp.path().join("coarse").join("config.json"));
+    let per_source = &saved["architecture"]["operator"]["coarse"];
+    assert_eq!(per_source["level"], 2);
+    assert_eq!(per_source["filters"], serde_json::json!([4, 6]));
+    let bench = bench_json(tmp.path(), &room, &["--model", &coarse_dir]);
+    assert!(bench["model_bank_ms"].as_f64().unwrap() > 0.0, "{bench}");
 }
 
 /// The figures `bench` writes for `room` (one repeat, no Python reference) with `extra`

@@ -12,7 +12,7 @@ use plumenet::surrogate::config::EpochLoss;
 
 use plumenet::frame::Frame;
 use plumenet::surrogate::conv::kernel::Isa;
-use plumenet::surrogate::model::{ConvImpl, OperatorConfig, ROOM_CHANNELS};
+use plumenet::surrogate::model::{CoarseConfig, ConvImpl, OperatorConfig, ROOM_CHANNELS};
 use plumenet::surrogate::saved::{load_weights, named_tensors, weights_bytes, weights_digest};
 use plumenet::surrogate::{
     PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData, train,
@@ -1220,6 +1220,59 @@ fn the_operator_networks_fused_bank_is_its_training_pass() {
     }
 }
 
+/// A tiny operator network of the coarse form: a three-level room U-Net decoding to level 1,
+/// where a two-level per-source network (one pooling) corrects the prior.
+fn tiny_coarse(epochs: usize) -> TrainingConfig {
+    let mut config = tiny_operator(epochs);
+    config.model = config.model.with_filters(vec![4, 8, 8]);
+    config.model.operator = config.model.operator.map(|op| {
+        op.with_coarse(Some(
+            CoarseConfig::new().with_level(1).with_filters(vec![4, 6]),
+        ))
+    });
+    config
+}
+
+/// The coarse form trains, and its bank (the room's share of the first convolution computed
+/// once and broadcast, the network run once per block of sources, the anchors' pooled planes
+/// read from tables, the correction upsampled and added to the prior in a fused loop) gives
+/// the fields of the training pass (the share expanded to every source of a batch of whole
+/// rooms, the anchors' planes encoded cell by cell and pooled, Burn's bilinear interpolation)
+/// to single-precision round-off, in rooms of several sizes and wind directions. Operator
+/// networks do not average the mirror image.
+#[test]
+fn the_coarse_operator_networks_bank_is_its_training_pass() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = rooms_dataset(&tmp.path().join("data"), 6, 4);
+    assert_fused_bank_is_training_pass(&data, &tiny_coarse(4), &tmp.path().join("coarse"));
+    let model = Surrogate::load(&tmp.path().join("coarse").join("model")).unwrap();
+    assert!(model.net().is_coarse());
+    assert_eq!(
+        model.views(),
+        1,
+        "an operator network does not average mirror images"
+    );
+}
+
+/// A coarse per-source network that pools deeper than the room's U-Net, or has no levels, is
+/// refused before training starts.
+#[test]
+fn a_coarse_operator_network_refuses_levels_the_room_net_lacks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tiny_dataset(&tmp.path().join("data"));
+    let out = tmp.path().join("model");
+    let with = |c: CoarseConfig| {
+        let mut config = tiny_coarse(1);
+        config.model.operator = config.model.operator.map(|op| op.with_coarse(Some(c)));
+        config
+    };
+    let deep = with(CoarseConfig::new().with_level(2).with_filters(vec![4, 6]));
+    assert_err(train(&data, &deep, &out, &mut |_| ()), "pools deeper");
+    let empty = with(CoarseConfig::new().with_level(1).with_filters(vec![]));
+    assert_err(train(&data, &empty, &out, &mut |_| ()), "non-empty");
+    assert!(!out.join("config.json").exists());
+}
+
 /// Trains `config` on `data` into `dir` and compares its fused bank with its training pass in
 /// every room of `data`.
 fn assert_fused_bank_is_training_pass(data: &TrainingData, config: &TrainingConfig, dir: &Path) {
@@ -1240,8 +1293,7 @@ fn assert_fused_bank_is_training_pass(data: &TrainingData, config: &TrainingConf
             .room_batch(
                 std::slice::from_ref(&room),
                 None,
-                &norm,
-                config.pad_cells,
+                (&norm, config.pad_cells, config.model.coarse_pooling()),
                 &device,
             )
             .unwrap();
@@ -1333,48 +1385,93 @@ fn the_vectorised_inverse_transform_is_expm1() {
 }
 
 /// An operator network started from a trained U-Net (`train --operator --init-from`) carries
-/// the U-Net's body: every convolution and up-sampling of the encoder and decoder as trained,
-/// the first one reading the room's five channels of the seven; a U-Net of another body or
-/// inputs is refused.
+/// the U-Net's body: every convolution and up-sampling of the encoder and decoder as trained
+/// (of the decoder, the levels the coarse form keeps), the first one reading the room's five
+/// channels of the seven; a U-Net of another body or inputs is refused.
 #[test]
 fn an_operator_network_starts_from_a_trained_unets_body() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tiny_dataset(&tmp.path().join("data"));
-    let unet_config = tiny_config(1);
-    train(&data, &unet_config, &tmp.path().join("unet"), &mut |_| ()).unwrap();
-    let unet = Surrogate::load(&tmp.path().join("unet")).unwrap();
     let device = plumenet::surrogate::backend::device();
-    let to = tiny_operator(1).model;
-    let net = unet
-        .net()
-        .operator_from(&unet_config.model, &to, 7, &device)
-        .unwrap();
-    let old: std::collections::BTreeMap<_, _> =
-        named_tensors(unet.net()).unwrap().into_iter().collect();
-    let mut copied = 0;
-    for (name, new) in named_tensors(&net).unwrap() {
-        if name.starts_with("head") || name.starts_with("operator") {
-            continue;
-        }
-        let old = &old[&name];
-        if name == "encoders.0.convs.0.weight" {
-            for (c, &i) in [0, 1, 3, 4, 5].iter().enumerate() {
-                assert_eq!(
-                    new.index_axis(ndarray::Axis(1), c),
-                    old.index_axis(ndarray::Axis(1), i),
-                    "input {c}"
-                );
+    for (name, to, least) in [
+        ("bilinear", tiny_operator(1).model, 8),
+        ("coarse", tiny_coarse(1).model, 10),
+    ] {
+        let mut unet_config = tiny_config(1);
+        unet_config.model = unet_config.model.with_filters(to.filters.clone());
+        train(&data, &unet_config, &tmp.path().join(name), &mut |_| ()).unwrap();
+        let unet = Surrogate::load(&tmp.path().join(name)).unwrap();
+        let net = unet
+            .net()
+            .operator_from(&unet_config.model, &to, 7, &device)
+            .unwrap();
+        let old: std::collections::BTreeMap<_, _> =
+            named_tensors(unet.net()).unwrap().into_iter().collect();
+        let mut copied = 0;
+        for (tensor, new) in named_tensors(&net).unwrap() {
+            if ["head", "operator", "coarse"]
+                .iter()
+                .any(|p| tensor.starts_with(p))
+            {
+                continue;
             }
-        } else {
-            assert_eq!(&new, old, "{name}");
+            let old = &old[&tensor];
+            if tensor == "encoders.0.convs.0.weight" {
+                for (c, &i) in [0, 1, 3, 4, 5].iter().enumerate() {
+                    assert_eq!(
+                        new.index_axis(ndarray::Axis(1), c),
+                        old.index_axis(ndarray::Axis(1), i),
+                        "{name}: input {c}"
+                    );
+                }
+            } else {
+                assert_eq!(&new, old, "{name}: {tensor}");
+            }
+            copied += 1;
         }
-        copied += 1;
+        assert!(copied >= least, "{name}: {copied} tensors copied");
     }
-    assert!(copied >= 8, "{copied} tensors copied");
+    let unet_config = tiny_config(1);
+    let unet = Surrogate::load(&tmp.path().join("bilinear")).unwrap();
     let other = tiny_operator(1).model.with_filters(vec![4, 6]);
     assert_err(
         unet.net()
             .operator_from(&unet_config.model, &other, 7, &device),
         "same body",
     );
+}
+
+/// A coarse network's anchor is the centre of the block of cells that holds the source: every
+/// source of the block has that anchor, within half a block of it, and the anchor's block is
+/// the source's.
+#[test]
+fn coarse_anchors_are_the_centres_of_their_blocks() {
+    let (cell, k) = (0.125, 4);
+    let block_m = 0.5;
+    for source in [
+        [0.0, 0.0],
+        [0.49, 0.26],
+        [0.5, 0.5],
+        [7.3, 2.9],
+        [29.99, 11.51],
+    ] {
+        let anchor = plumenet::surrogate::coarse::anchor(source, cell, k);
+        let block = plumenet::surrogate::coarse::block(source, cell, k);
+        assert_eq!(plumenet::surrogate::coarse::block(anchor, cell, k), block);
+        for axis in 0..2 {
+            assert!(
+                (anchor[axis] - source[axis]).abs() <= block_m / 2.0,
+                "{source:?}"
+            );
+            let centre = (anchor[axis] / block_m - 0.5).round() * block_m + block_m / 2.0;
+            assert!((anchor[axis] - centre).abs() < 1e-12, "{anchor:?}");
+        }
+        assert_eq!(
+            block,
+            (
+                (source[1] / block_m).floor() as i64,
+                (source[0] / block_m).floor() as i64
+            )
+        );
+    }
 }

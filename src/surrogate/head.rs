@@ -117,12 +117,22 @@ impl SourceTables {
         sources: &[[f64; 2]],
         norm: &Normalization,
     ) -> Self {
+        Self::with_width(room, terms.grid[1], sources, norm)
+    }
+
+    /// The tables of canonical `sources` in `room`, for a padded grid `width` columns wide.
+    pub fn with_width(
+        room: &RoomPlanes,
+        width: usize,
+        sources: &[[f64; 2]],
+        norm: &Normalization,
+    ) -> Self {
         let mut out = Self {
             tables: BTreeMap::new(),
             shape: room.shape(),
             cell_m: room.cell_m,
         };
-        let size = (out.shape.0, terms.grid[1]);
+        let size = (out.shape.0, width);
         for &source in sources {
             let (_, key, fraction) = out.place(source);
             if let Entry::Vacant(slot) = out.tables.entry(key) {
@@ -130,6 +140,33 @@ impl SourceTables {
             }
         }
         out
+    }
+
+    /// The per-source planes of canonical `source` (one of the tables' sources) along room row
+    /// `j`, as [`RoomPlanes::encode_source`] gives them (the same values up to round-off of the
+    /// offsets) for the room's `w` columns: the transformed prior (not yet masked by
+    /// obstacles), `tanh(dx / 2 m)` and the row's `tanh(dy / 2 m)`.
+    ///
+    /// # Panics
+    /// When `source` has no table or `j` is not a room row.
+    pub fn row(&self, source: [f64; 2], j: usize) -> (&[f32], &[f32], f32) {
+        let (h, w) = self.shape;
+        assert!(j < h, "a room row");
+        let ((js, is), key, _) = self.place(source);
+        let table = &self.tables[&key];
+        let tw = table.dx.len();
+        let first = tw.div_ceil(2) - 1 - is;
+        let r = j + h - 1 - js;
+        (
+            &table.prior[r * tw + first..r * tw + first + w],
+            &table.dx[first..first + w],
+            table.dy[r],
+        )
+    }
+
+    /// Room cells `(h, w)`.
+    pub fn shape(&self) -> (usize, usize) {
+        self.shape
     }
 
     /// A canonical source's cell `(js, is)`, the key of its sub-cell position and the position

@@ -1,14 +1,16 @@
 //! A trained PlumeNet ([`super::saved`]) loaded for prediction and banks.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 
+use super::coarse;
 use super::data::{RoomPlanes, padded_shape};
 use super::head::{self, FusedHead, RoomTerms, SourceTables};
-use super::model::{ConvImpl, PlumeNet, ROOM_CHANNELS};
+use super::model::{COARSE_SOURCE_PLANES, CoarseNet, ConvImpl, PlumeNet, ROOM_CHANNELS};
 use super::saved::{LEGACY_MODEL_FORMAT, SavedModel};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
@@ -253,31 +255,41 @@ impl Surrogate {
             (room.mirrored(), flipped)
         });
         let weight = 1.0 / self.views() as f32;
-        // An operator network's room pass and room terms, once per view.
-        let head = if self.net.is_operator() {
+        // An operator network's room pass and room terms (the coarse form's room share), once
+        // per view.
+        let head = if self.net.is_operator() && !self.net.is_coarse() {
             Some(FusedHead::of(&self.net)?)
         } else {
             None
         };
+        let room_input = |room: &RoomPlanes| -> Result<Tensor<4>> {
+            let mut input = vec![0.0f32; ROOM_CHANNELS * grid[0] * grid[1]];
+            room.encode_room(&norm, (grid[0], grid[1]), &mut input)?;
+            Ok(Tensor::<4>::from_data(
+                TensorData::new(input, [1, ROOM_CHANNELS, grid[0], grid[1]]),
+                &self.device,
+            ))
+        };
         let pass = |room: &RoomPlanes, sources: &[[f64; 2]]| -> Result<Option<RoomPass>> {
+            if let Some(coarse) = &self.net.coarse {
+                let planes = self.net.room_planes(room_input(room)?, imp);
+                let share = coarse.room_share(planes, imp);
+                return self
+                    .coarse_pass(coarse, (room, share), sources, grid, imp)
+                    .map(Some);
+            }
             let Some(head) = &head else {
                 return Ok(None);
             };
-            let mut input = vec![0.0f32; ROOM_CHANNELS * grid[0] * grid[1]];
-            room.encode_room(&norm, (grid[0], grid[1]), &mut input)?;
-            let x = Tensor::<4>::from_data(
-                TensorData::new(input, [1, ROOM_CHANNELS, grid[0], grid[1]]),
-                &self.device,
-            );
             let planes = self
                 .net
-                .room_planes(x, imp)
+                .room_planes(room_input(room)?, imp)
                 .into_data()
                 .try_to_vec::<f32>()
                 .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))?;
             let terms = head.room_terms(&planes, grid);
             let tables = SourceTables::new(room, &terms, sources, &norm);
-            Ok(Some(RoomPass {
+            Ok(Some(RoomPass::Bilinear {
                 planes,
                 terms,
                 tables,
@@ -289,18 +301,29 @@ impl Surrogate {
             None => None,
         };
         // Transformed outputs `[n, H', W']` on `[gh, gw]`: the network's grid, or the room
-        // terms' (widened to whole tiles) for an operator network.
-        let [gh, gw] = direct_pass.as_ref().map_or(grid, |p| p.terms.grid);
+        // terms' (widened to whole tiles) for an operator network of the bilinear form.
+        let [gh, gw] = match &direct_pass {
+            Some(RoomPass::Bilinear { terms, .. }) => terms.grid,
+            _ => grid,
+        };
         let raw = |room: &RoomPlanes, pass: &Option<RoomPass>, sources: &[[f64; 2]]| match (
             pass, &head,
         ) {
-            (Some(pass), Some(head)) => Ok(head::source_fields(
-                &pass.terms,
-                &pass.tables,
+            (
+                Some(RoomPass::Bilinear {
+                    planes,
+                    terms,
+                    tables,
+                }),
+                Some(head),
+            ) => Ok(head::source_fields(
+                terms,
+                tables,
                 sources,
-                &head.coefficients(room, &pass.planes, grid, sources),
+                &head.coefficients(room, planes, grid, sources),
                 &head.weights,
             )),
+            (Some(RoomPass::Coarse(pass)), _) => Ok(coarse_raw(room, pass, sources, grid)),
             _ => self.forward_raw_with(self.encode(room, sources, grid)?, grid, imp),
         };
         // Where each real cell reads its canonical value and its mirror image's (row
@@ -353,6 +376,62 @@ impl Surrogate {
         Ok(out)
     }
 
+    /// The coarse network's pass over one view of a room, from the room's `share`
+    /// ([`CoarseNet::room_share`]): the network runs once per block of cells that holds one of
+    /// the canonical `sources` ([`coarse::anchor`]), in chunks of [`BANK_CHUNK`] anchors.
+    fn coarse_pass(
+        &self,
+        coarse: &CoarseNet,
+        (room, share): (&RoomPlanes, Tensor<4>),
+        sources: &[[f64; 2]],
+        [h, w]: [usize; 2],
+        imp: ConvImpl,
+    ) -> Result<RoomPass> {
+        let (k, cell) = (coarse.scale(), room.cell_m);
+        let mut blocks = BTreeMap::new();
+        let mut anchors = Vec::new();
+        for &source in sources {
+            blocks
+                .entry(coarse::block(source, cell, k))
+                .or_insert_with(|| {
+                    anchors.push(coarse::anchor(source, cell, k));
+                    anchors.len() - 1
+                });
+        }
+        let every: Vec<[f64; 2]> = sources.iter().chain(&anchors).copied().collect();
+        let tables = SourceTables::with_width(room, w, &every, &self.saved.normalization);
+        let (hs, ws) = (h / k, w / k);
+        let per_anchor = COARSE_SOURCE_PLANES * hs * ws;
+        let mut corrections = Vec::with_capacity(anchors.len() * hs * ws);
+        for chunk in anchors.chunks(BANK_CHUNK) {
+            let mut input = vec![0.0f32; chunk.len() * per_anchor];
+            input
+                .par_chunks_mut(per_anchor)
+                .zip(chunk)
+                .for_each(|(slot, &anchor)| {
+                    let rows = |j| tables.row(anchor, j);
+                    coarse::pooled_planes(rows, room, anchor, ((h, w), k), slot);
+                });
+            let x = Tensor::<4>::from_data(
+                TensorData::new(input, [chunk.len(), COARSE_SOURCE_PLANES, hs, ws]),
+                &self.device,
+            );
+            corrections.extend(
+                coarse
+                    .correction(share.clone(), x, imp)
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .map_err(|e| Error::Model(format!("unexpected network output: {e:?}")))?,
+            );
+        }
+        Ok(RoomPass::Coarse(CoarsePass {
+            tables,
+            blocks,
+            corrections,
+            k,
+        }))
+    }
+
     /// Predicted field `[H, W]` of one source.
     ///
     /// # Errors
@@ -363,12 +442,59 @@ impl Surrogate {
     }
 }
 
-/// An operator network's pass over one view of a room: its planes, the room terms and the
-/// tables of the sources.
-struct RoomPass {
-    planes: Vec<f32>,
-    terms: RoomTerms,
+/// An operator network's pass over one view of a room.
+enum RoomPass {
+    /// The bilinear form's room planes, room terms and the tables of the sources.
+    Bilinear {
+        planes: Vec<f32>,
+        terms: RoomTerms,
+        tables: SourceTables,
+    },
+    /// The coarse form's corrections, one per block of sources.
+    Coarse(CoarsePass),
+}
+
+/// The coarse form's pass over one view of a room: the tables of the sources and their
+/// anchors, and the network's correction of each block that holds a source.
+struct CoarsePass {
     tables: SourceTables,
+    /// Index of each block ([`coarse::block`]) among the corrections.
+    blocks: BTreeMap<(i64, i64), usize>,
+    /// `[blocks, H / k, W / k]` corrections.
+    corrections: Vec<f32>,
+    /// Cells a side of the network's cells.
+    k: usize,
+}
+
+/// The coarse form's transformed concentrations `[n, H, W]` of canonical `sources` (those of
+/// `pass`) in `room` on `grid`: each source's prior plus its block's correction, upsampled.
+fn coarse_raw(
+    room: &RoomPlanes,
+    pass: &CoarsePass,
+    sources: &[[f64; 2]],
+    [h, w]: [usize; 2],
+) -> Vec<f32> {
+    let (k, cell) = (pass.k, room.cell_m);
+    let (hs, ws) = (h / k, w / k);
+    let taps = (
+        coarse::upsampling_taps(hs, h),
+        coarse::upsampling_taps(ws, w),
+    );
+    let mut out = vec![0.0f32; sources.len() * h * w];
+    out.par_chunks_mut(h * w)
+        .zip(sources)
+        .for_each(|(field, &source)| {
+            let at = pass.blocks[&coarse::block(source, cell, k)] * hs * ws;
+            coarse::fine_field(
+                &pass.tables,
+                room,
+                source,
+                (&pass.corrections[at..at + hs * ws], ws),
+                (&taps.0, &taps.1),
+                field,
+            );
+        });
+    out
 }
 
 /// Canonical coordinates of real `sources`.

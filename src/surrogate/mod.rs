@@ -3,11 +3,13 @@
 //! encoding and batches ([`data`]; an operator network's in [`room_batch`]), the definition of
 //! a training run ([`config`]), training ([`training`]), the files of a trained model
 //! ([`saved`]), loading, prediction and banks ([`inference`]; an operator network's per-source
-//! head fused on the CPU in [`head`], the inverse transform vectorised in [`expm1`]), accuracy
+//! head fused on the CPU in [`head`], the coarse form's pooling and upsampling in [`coarse`],
+//! the inverse transform vectorised in [`expm1`]), accuracy
 //! ([`eval`]). Tensors meet ndarray or plain slices only in [`data`], [`room_batch`],
 //! [`conv`], [`head`], [`saved`] and [`inference`].
 
 pub mod backend;
+pub mod coarse;
 pub mod config;
 pub mod conv;
 pub mod data;

@@ -12,6 +12,9 @@ use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfi
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{Initializer, PaddingConfig2d};
 use burn::prelude::*;
+use burn::tensor::activation::relu;
+use burn::tensor::module::interpolate;
+use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -67,7 +70,47 @@ pub struct OperatorConfig {
     /// Hidden channels of the per-source head.
     #[config(default = 16)]
     pub hidden: usize,
+    /// A coarse per-source network ([`CoarseConfig`]) in place of the bilinear form and its
+    /// head. `None` (as in models saved before it existed) means the bilinear form.
+    pub coarse: Option<CoarseConfig>,
 }
+
+/// The coarse form of an operator network's per-source part: a small U-Net that works at
+/// pooling level `level` (cells of `2^level` grid cells a side) and gives a correction to the
+/// analytic prior there, upsampled bilinearly to the grid and added to the prior.
+///
+/// The room pass's U-Net decodes only down to `level`, where its head gives `E` room planes.
+/// The correction sees the source through its anchor, the centre of the network's cell that
+/// holds it: the network reads the anchor's per-source planes pooled to `level`
+/// ([`crate::surrogate::coarse::pooled_planes`]) and, added before the first ReLU, the room
+/// planes' share of its first convolution, which is computed once per room. Sources of one
+/// network cell (four candidates 0.25 m apart in a 0.5 m cell) therefore share one correction,
+/// and a bank runs the network once per cell; the exact position enters through the prior.
+/// The bilinear form's sizes (`groups`, `group_size`, `hidden`) are not used.
+#[derive(Config, Debug, PartialEq)]
+pub struct CoarseConfig {
+    /// Pooling level of the per-source network.
+    #[config(default = 2)]
+    pub level: usize,
+    /// Channels per level of the per-source network, shallow to deep.
+    #[config(default = "vec![8, 16, 32]")]
+    pub filters: Vec<usize>,
+    /// Square kernel size of its convolutions.
+    #[config(default = 3)]
+    pub kernel_size: usize,
+    /// Convolutions per block.
+    #[config(default = 2)]
+    pub convs_per_level: usize,
+}
+
+/// Planes a coarse per-source network reads per source: the means of the per-source planes
+/// over each coarse cell, the prior's maximum there, and the cell centre's offset from the
+/// source along and across the wind in [`COARSE_OFFSET_CELLS`].
+pub const COARSE_SOURCE_PLANES: usize = SOURCE_PLANES + 3;
+
+/// Scale of a coarse per-source network's offset planes, in grid cells (10 m of 0.125 m): they
+/// grow linearly across any room, where the per-source planes' `tanh(d / 2 m)` saturate.
+pub const COARSE_OFFSET_CELLS: f32 = 80.0;
 
 /// Channels of the per-source planes an operator network's head reads beside the room's: the
 /// analytic prior and the source offset `tanh(dx / 2 m)`, `tanh(dy / 2 m)`.
@@ -86,9 +129,19 @@ impl OperatorConfig {
         self.groups * self.group_size
     }
 
-    /// Planes the U-Net's head gives: trunk and branch planes and the room planes.
+    /// Planes the U-Net's head gives: trunk and branch planes and the room planes (the room
+    /// planes alone for the coarse form).
     pub fn room_outputs(&self) -> usize {
-        2 * self.terms() + self.room_planes
+        if self.coarse.is_some() {
+            self.room_planes
+        } else {
+            2 * self.terms() + self.room_planes
+        }
+    }
+
+    /// The pooling level the room pass decodes down to: the coarse form's level, else 0.
+    pub fn room_level(&self) -> usize {
+        self.coarse.as_ref().map_or(0, |c| c.level)
     }
 
     /// Input channels of the per-source head.
@@ -106,14 +159,32 @@ pub struct SourceHead {
     pub(super) group_size: usize,
 }
 
-/// Where an operator network reads each source's branch planes: for source `n`, four flat
-/// indices into the room batch's `[B H W]` cells and their bilinear weights.
+/// The coarse per-source network of an operator network ([`CoarseConfig`]).
+#[derive(Module, Debug)]
+pub struct CoarseNet {
+    /// The room planes' share of the first convolution (no bias), computed once per room.
+    pub(super) room: Conv2d,
+    pub(super) encoders: Vec<ConvBlock>,
+    pool: MaxPool2d,
+    pub(super) ups: Vec<ConvTranspose2d>,
+    pub(super) decoders: Vec<ConvBlock>,
+    /// 1x1 convolution to the correction.
+    pub(super) out: Conv2d,
+    level: usize,
+}
+
+/// Where an operator network reads each source: for source `n`, four flat indices into the
+/// room batch's `[B H W]` cells and their bilinear weights (the bilinear form's branch planes),
+/// or the pooled planes of its anchor (the coarse form's input).
 #[derive(Debug, Clone)]
 pub struct SourceTaps {
     /// `[4 S]` flat cell indices (corner `c` of source `n` at `c S + n`).
     pub cells: Tensor<1, Int>,
     /// `[4 S, 1]` bilinear weights, in the same order.
     pub weights: Tensor<2>,
+    /// The coarse form's `[S, COARSE_SOURCE_PLANES, H / 2^l, W / 2^l]` pooled planes of the
+    /// sources' anchors; `None` for the bilinear form.
+    pub pooled: Option<Tensor<4>>,
 }
 
 /// Which implementation runs PlumeNet's convolutions.
@@ -170,12 +241,83 @@ impl ConvBlock {
         Self { convs }
     }
 
-    fn forward(&self, mut x: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
+    /// The block on `x`; `shift`, when given, is added to the first convolution's output
+    /// before its ReLU.
+    fn forward(&self, mut x: Tensor<4>, mut shift: Option<Tensor<4>>, imp: ConvImpl) -> Tensor<4> {
         for conv in &self.convs {
-            x = same_conv(conv, x, true, imp);
+            x = match shift.take() {
+                Some(shift) => relu(same_conv(conv, x, false, imp).add(shift)),
+                None => same_conv(conv, x, true, imp),
+            };
         }
         x
     }
+}
+
+/// The encoder blocks, transposed convolutions and decoder blocks of a U-Net on `cin` input
+/// channels with `filters` per level, its decoder going back up to level `start` only.
+fn unet_parts(
+    cin: usize,
+    filters: &[usize],
+    (kernel, convs): (usize, usize),
+    start: usize,
+    device: &Device,
+) -> (Vec<ConvBlock>, Vec<ConvTranspose2d>, Vec<ConvBlock>) {
+    let f = filters;
+    let encoders = f
+        .iter()
+        .enumerate()
+        .map(|(l, &c)| {
+            ConvBlock::new(
+                if l == 0 { cin } else { f[l - 1] },
+                c,
+                kernel,
+                convs,
+                device,
+            )
+        })
+        .collect();
+    // Decoder level l (from deep to shallow) goes from f[l + 1] channels up to f[l].
+    let ups = (start..f.len() - 1)
+        .rev()
+        .map(|l| {
+            ConvTranspose2dConfig::new([f[l + 1], f[l]], [2, 2])
+                .with_stride([2, 2])
+                .with_initializer(Initializer::Zeros)
+                .init(device)
+        })
+        .collect();
+    let decoders = (start..f.len() - 1)
+        .rev()
+        .map(|l| ConvBlock::new(2 * f[l], f[l], kernel, convs, device))
+        .collect();
+    (encoders, ups, decoders)
+}
+
+/// A U-Net's encoder and decoder on `x` (sides whole pooling steps): each encoder block, a
+/// max-pool between levels, then each decoder level's transposed convolution, concatenation
+/// with the encoder's output at that level and block. `shift` is added to the first
+/// convolution's output before its ReLU. Returns the last decoder block's output (the deepest
+/// encoder's without decoders).
+fn encode_decode(
+    (encoders, pool, ups, decoders): (&[ConvBlock], &MaxPool2d, &[ConvTranspose2d], &[ConvBlock]),
+    mut x: Tensor<4>,
+    mut shift: Option<Tensor<4>>,
+    imp: ConvImpl,
+) -> Tensor<4> {
+    let mut skips = Vec::with_capacity(encoders.len());
+    for (l, enc) in encoders.iter().enumerate() {
+        x = enc.forward(x, shift.take(), imp);
+        if l + 1 < encoders.len() {
+            skips.push(x.clone());
+            x = pool.forward(x);
+        }
+    }
+    for (up, dec) in ups.iter().zip(decoders) {
+        let skip = skips.pop().expect("one skip per decoder level");
+        x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1), None, imp);
+    }
+    x
 }
 
 /// The U-Net.
@@ -188,6 +330,7 @@ pub struct PlumeNet {
     pub(super) head: Conv2d,
     prior_skip: bool,
     pub(super) operator: Option<SourceHead>,
+    pub(super) coarse: Option<CoarseNet>,
 }
 
 impl PlumeNetConfig {
@@ -199,30 +342,47 @@ impl PlumeNetConfig {
     pub fn init_seeded(&self, device: &Device, seed: u64) -> PlumeNet {
         let mut net = self.init(device);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut draw_conv = |conv: &mut Conv2d| {
+        let draw_conv = |rng: &mut ChaCha8Rng, conv: &mut Conv2d| {
             let [cout, cin, kh, kw] = conv.weight.dims();
             let fan_in = cin * kh * kw;
-            conv.weight = uniform(&mut rng, [cout, cin, kh, kw], fan_in, device);
-            conv.bias = Some(uniform(&mut rng, [cout], fan_in, device));
+            conv.weight = uniform(rng, [cout, cin, kh, kw], fan_in, device);
+            conv.bias = Some(uniform(rng, [cout], fan_in, device));
         };
-        for block in net.encoders.iter_mut() {
-            block.convs.iter_mut().for_each(&mut draw_conv);
-        }
-        for block in net.decoders.iter_mut() {
-            block.convs.iter_mut().for_each(&mut draw_conv);
-        }
-        draw_conv(&mut net.head);
-        if let Some(op) = net.operator.as_mut() {
-            draw_conv(&mut op.mix);
-            draw_conv(&mut op.out);
-        }
-        for up in net.ups.iter_mut() {
+        let draw_up = |rng: &mut ChaCha8Rng, up: &mut ConvTranspose2d| {
             let [cin, cout, kh, kw] = up.weight.dims();
             let fan_in = cout * kh * kw;
-            up.weight = uniform(&mut rng, [cin, cout, kh, kw], fan_in, device);
-            up.bias = Some(uniform(&mut rng, [cout], fan_in, device));
+            up.weight = uniform(rng, [cin, cout, kh, kw], fan_in, device);
+            up.bias = Some(uniform(rng, [cout], fan_in, device));
+        };
+        for block in net.encoders.iter_mut().chain(net.decoders.iter_mut()) {
+            block.convs.iter_mut().for_each(|c| draw_conv(&mut rng, c));
+        }
+        draw_conv(&mut rng, &mut net.head);
+        if let Some(op) = net.operator.as_mut() {
+            draw_conv(&mut rng, &mut op.mix);
+            draw_conv(&mut rng, &mut op.out);
+        }
+        net.ups.iter_mut().for_each(|u| draw_up(&mut rng, u));
+        if let Some(coarse) = net.coarse.as_mut() {
+            coarse.ups.iter_mut().for_each(|u| draw_up(&mut rng, u));
+            for block in coarse.encoders.iter_mut().chain(coarse.decoders.iter_mut()) {
+                block.convs.iter_mut().for_each(|c| draw_conv(&mut rng, c));
+            }
+            draw_conv(&mut rng, &mut coarse.out);
+            // The room share has no bias: the first convolution's own is the block's.
+            let [cout, cin, kh, kw] = coarse.room.weight.dims();
+            coarse.room.weight = uniform(&mut rng, [cout, cin, kh, kw], cin * kh * kw, device);
         }
         net
+    }
+
+    /// Cells a side of a coarse operator network's cells ([`CoarseConfig`]): `2^level` for
+    /// the coarse form, `None` for any other network.
+    pub fn coarse_pooling(&self) -> Option<usize> {
+        self.operator
+            .as_ref()
+            .and_then(|op| op.coarse.as_ref())
+            .map(|c| 1 << c.level)
     }
 
     /// Whether the analytic prior skips to the head.
@@ -236,62 +396,58 @@ impl PlumeNetConfig {
         let k = self.kernel_size;
         let n = self.convs_per_level;
         let f = &self.filters;
-        let encoders = f
-            .iter()
-            .enumerate()
-            .map(|(l, &c)| {
-                ConvBlock::new(
-                    if l == 0 { self.in_channels } else { f[l - 1] },
-                    c,
-                    k,
-                    n,
-                    device,
-                )
-            })
-            .collect();
-        // Decoder level l (from deep to shallow) goes from f[l + 1] channels up to f[l].
-        let ups = (0..f.len() - 1)
-            .rev()
-            .map(|l| {
-                ConvTranspose2dConfig::new([f[l + 1], f[l]], [2, 2])
-                    .with_stride([2, 2])
-                    .with_initializer(Initializer::Zeros)
-                    .init(device)
-            })
-            .collect();
-        let decoders = (0..f.len() - 1)
-            .rev()
-            .map(|l| ConvBlock::new(2 * f[l], f[l], k, n, device))
-            .collect();
+        let start = self.operator.as_ref().map_or(0, OperatorConfig::room_level);
+        let (encoders, ups, decoders) = unet_parts(self.in_channels, f, (k, n), start, device);
+        let pool = || MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init();
+        let conv = |cin, cout, kernel: usize| {
+            Conv2dConfig::new([cin, cout], [kernel, kernel])
+                .with_padding(PaddingConfig2d::Same)
+                .with_initializer(Initializer::Zeros)
+        };
         PlumeNet {
             encoders,
-            pool: MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init(),
+            pool: pool(),
             ups,
             decoders,
-            head: Conv2dConfig::new(
-                [
-                    f[0] + usize::from(self.skips_prior()),
-                    self.operator
-                        .as_ref()
-                        .map_or(1, OperatorConfig::room_outputs),
-                ],
-                [1, 1],
+            head: conv(
+                f[start] + usize::from(self.skips_prior()),
+                self.operator
+                    .as_ref()
+                    .map_or(1, OperatorConfig::room_outputs),
+                1,
             )
-            .with_initializer(Initializer::Zeros)
             .init(device),
             prior_skip: self.skips_prior(),
-            operator: self.operator.as_ref().map(|op| {
-                let conv = |cin, cout| {
-                    Conv2dConfig::new([cin, cout], [1, 1])
-                        .with_initializer(Initializer::Zeros)
-                        .init(device)
-                };
-                SourceHead {
-                    mix: conv(op.head_inputs(), op.hidden),
-                    out: conv(op.hidden, 1),
+            operator: self
+                .operator
+                .as_ref()
+                .filter(|op| op.coarse.is_none())
+                .map(|op| SourceHead {
+                    mix: conv(op.head_inputs(), op.hidden, 1).init(device),
+                    out: conv(op.hidden, 1, 1).init(device),
                     groups: op.groups,
                     group_size: op.group_size,
-                }
+                }),
+            coarse: self.operator.as_ref().and_then(|op| {
+                let c = op.coarse.as_ref()?;
+                let (encoders, ups, decoders) = unet_parts(
+                    COARSE_SOURCE_PLANES,
+                    &c.filters,
+                    (c.kernel_size, c.convs_per_level),
+                    0,
+                    device,
+                );
+                Some(CoarseNet {
+                    room: conv(op.room_planes, c.filters[0], c.kernel_size)
+                        .with_bias(false)
+                        .init(device),
+                    encoders,
+                    pool: pool(),
+                    ups,
+                    decoders,
+                    out: conv(c.filters[0], 1, 1).init(device),
+                    level: c.level,
+                })
             }),
         }
     }
@@ -334,18 +490,13 @@ impl PlumeNet {
             x.clone()
                 .slice([0..b, channels - 1..channels, 0..hp, 0..wp])
         });
-        let mut skips = Vec::with_capacity(self.encoders.len());
-        for (l, enc) in self.encoders.iter().enumerate() {
-            x = enc.forward(x, imp);
-            if l + 1 < self.encoders.len() {
-                skips.push(x.clone());
-                x = self.pool.forward(x);
-            }
-        }
-        for (up, dec) in self.ups.iter().zip(&self.decoders) {
-            let skip = skips.pop().expect("one skip per decoder level");
-            x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1), imp);
-        }
+        let parts = (
+            &self.encoders[..],
+            &self.pool,
+            &self.ups[..],
+            &self.decoders[..],
+        );
+        x = encode_decode(parts, x, None, imp);
         if let Some(prior) = prior {
             x = Tensor::cat(vec![x, prior], 1);
         }
@@ -354,11 +505,17 @@ impl PlumeNet {
 
     /// Whether this is an operator network ([`OperatorConfig`]).
     pub fn is_operator(&self) -> bool {
-        self.operator.is_some()
+        self.operator.is_some() || self.coarse.is_some()
+    }
+
+    /// Whether this is an operator network of the coarse form ([`CoarseConfig`]).
+    pub fn is_coarse(&self) -> bool {
+        self.coarse.is_some()
     }
 
     /// An operator network's room pass: `[B, ROOM_CHANNELS, H, W]` room inputs (sides whole
-    /// pooling steps) to the room planes `[B, 2 K + E, H, W]` that
+    /// pooling steps) to the room planes `[B, 2 K + E, H, W]` (the coarse form's `[B, E, H / 2^l,
+    /// W / 2^l]` at its level `l`) that
     /// [`PlumeNet::source_fields`] reads.
     pub fn room_planes(&self, rooms: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
         // Each plane is divided by its root mean square over the grid, so that the bilinear
@@ -389,6 +546,13 @@ impl PlumeNet {
         sources: Tensor<4>,
         imp: ConvImpl,
     ) -> Tensor<4> {
+        if let Some(coarse) = &self.coarse {
+            let pooled = taps
+                .pooled
+                .clone()
+                .expect("a coarse network's batch has the anchors' pooled planes");
+            return coarse.fields(planes, sources, pooled, imp);
+        }
         let op = self.operator.as_ref().expect("an operator network");
         let [b, outputs, h, w] = planes.dims();
         let [bm, _, _, _] = sources.dims();
@@ -424,5 +588,63 @@ impl PlumeNet {
         let x = Tensor::cat(vec![z, room, sources], 1);
         let hidden = same_conv(&op.mix, x, true, imp);
         same_conv(&op.out, hidden, false, imp).add(prior)
+    }
+}
+
+impl CoarseNet {
+    /// The room planes' share of the first convolution, `[B, C, H / 2^l, W / 2^l]` for room
+    /// planes `[B, E, H / 2^l, W / 2^l]`: the same for every source of a room.
+    pub fn room_share(&self, planes: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
+        same_conv(&self.room, planes, false, imp)
+    }
+
+    /// The transformed concentration `[B M, 1, H, W]` of `M` sources in each of `B` rooms,
+    /// from the room planes `[B, E, H / 2^l, W / 2^l]`, the per-source planes
+    /// `[B M, SOURCE_PLANES, H, W]` (room-major; channel 0, the transformed prior, is the one
+    /// read) and the pooled planes of the sources' anchors
+    /// ([`crate::surrogate::coarse::pooled_planes`]).
+    pub fn fields(
+        &self,
+        planes: Tensor<4>,
+        sources: Tensor<4>,
+        pooled: Tensor<4>,
+        imp: ConvImpl,
+    ) -> Tensor<4> {
+        let b = planes.dims()[0];
+        let share = self.room_share(planes, imp);
+        let [_, c, hs, ws] = share.dims();
+        let [bm, _, h, w] = sources.dims();
+        let share = share
+            .unsqueeze_dim::<5>(1)
+            .expand([b, bm / b, c, hs, ws])
+            .reshape([bm, c, hs, ws]);
+        let prior = sources.slice([0..bm, 0..1, 0..h, 0..w]);
+        interpolate(
+            self.correction(share, pooled, imp),
+            InterpolateOptions::new(InterpolateMode::Bilinear)
+                .with_align_corners(false)
+                .with_output_size([h, w]),
+        )
+        .add(prior)
+    }
+
+    /// Cells of the grid a side of one of the network's cells: `2^level`.
+    pub fn scale(&self) -> usize {
+        1 << self.level
+    }
+
+    /// The correction `[n, 1, H / 2^l, W / 2^l]` to the transformed prior of `n` sources from
+    /// the pooled planes of their anchors `[n, COARSE_SOURCE_PLANES, H / 2^l, W / 2^l]` and the
+    /// room share, expanded
+    /// to every source or of one room (`[1, C, ..]`, broadcast).
+    pub fn correction(&self, share: Tensor<4>, pooled: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
+        let parts = (
+            &self.encoders[..],
+            &self.pool,
+            &self.ups[..],
+            &self.decoders[..],
+        );
+        let x = encode_decode(parts, pooled, Some(share), imp);
+        same_conv(&self.out, x, false, imp)
     }
 }

@@ -6,8 +6,9 @@ use std::collections::BTreeMap;
 
 use burn::prelude::*;
 
+use super::coarse;
 use super::data::{Normalization, RoomPlanes, TrainingData, padded_shape};
-use super::model::{ROOM_CHANNELS, SOURCE_PLANES, SourceTaps};
+use super::model::{COARSE_SOURCE_PLANES, ROOM_CHANNELS, SOURCE_PLANES, SourceTaps};
 use crate::error::{Error, Result};
 
 /// The samples of one layout: an operator network's unit of batching.
@@ -29,8 +30,9 @@ pub struct RoomBatch {
 }
 
 impl SourceTaps {
-    /// The taps of `S` sources, one row of four per source, as tensors on `device`.
-    pub fn new(rows: &[[(i64, f32); 4]], device: &Device) -> Self {
+    /// The taps of `S` sources, one row of four per source, with the coarse form's pooled
+    /// planes of their anchors, as tensors on `device`.
+    pub fn new(rows: &[[(i64, f32); 4]], pooled: Option<Tensor<4>>, device: &Device) -> Self {
         let s = rows.len();
         let (mut cells, mut weights) = (vec![0i64; 4 * s], vec![0.0f32; 4 * s]);
         for (n, row) in rows.iter().enumerate() {
@@ -42,6 +44,7 @@ impl SourceTaps {
         Self {
             cells: Tensor::<1, Int>::from_data(TensorData::new(cells, [4 * s]), device),
             weights: Tensor::<2>::from_data(TensorData::new(weights, [4 * s, 1]), device),
+            pooled,
         }
     }
 }
@@ -161,7 +164,8 @@ impl TrainingData {
     /// every room with the same number of sources `M`, padded to the largest padded grid among
     /// them, with target and weight tensors `[B M, 1, H, W]` as in [`TrainingData::batch`].
     /// With `mirror`, the rooms whose entry is true are mirrored across the wind (with their
-    /// sources and targets).
+    /// sources and targets). With `pool = Some(k)` (a coarse network pooling by `k`), the taps
+    /// hold the pooled planes of the sources' anchors ([`coarse::pooled_planes`]).
     ///
     /// # Errors
     /// [`Error::Dataset`] for rooms of different source counts or samples of different
@@ -170,8 +174,7 @@ impl TrainingData {
         &self,
         rooms: &[RoomSamples],
         mirror: Option<&[bool]>,
-        norm: &Normalization,
-        pad_cells: usize,
+        (norm, pad_cells, pool): (&Normalization, usize, Option<usize>),
         device: &Device,
     ) -> Result<(RoomBatch, Tensor<4>, Tensor<4>)> {
         let m = rooms.first().map_or(0, Vec::len);
@@ -195,6 +198,9 @@ impl TrainingData {
         let b = rooms.len();
         let mut room_in = vec![0.0f32; b * ROOM_CHANNELS * plane];
         let mut source_in = vec![0.0f32; b * m * SOURCE_PLANES * plane];
+        let pooled_size = pool.map_or(0, |k| COARSE_SOURCE_PLANES * plane / (k * k));
+        let mut pooled = vec![0.0f32; b * m * pooled_size];
+        let mut anchor_planes = vec![0.0f32; pool.map_or(0, |_| SOURCE_PLANES * plane)];
         let mut target = vec![0.0f32; b * m * plane];
         let mut free = vec![0.0f32; b * m * plane];
         let mut taps = Vec::with_capacity(b * m);
@@ -227,6 +233,26 @@ impl TrainingData {
                     &mut source_in[n * SOURCE_PLANES * plane..(n + 1) * SOURCE_PLANES * plane],
                 );
                 taps.push(room.taps(source, r, (h, w)));
+                if let Some(k) = pool {
+                    let anchor = coarse::anchor(source, room.cell_m, k);
+                    anchor_planes.fill(0.0);
+                    room.encode_source(anchor, norm, (h, w), &mut anchor_planes);
+                    let rows = |j: usize| {
+                        let at = j * w;
+                        (
+                            &anchor_planes[at..at + w],
+                            &anchor_planes[plane + at..plane + at + w],
+                            anchor_planes[2 * plane + at],
+                        )
+                    };
+                    coarse::pooled_planes(
+                        rows,
+                        room,
+                        anchor,
+                        ((h, w), k),
+                        &mut pooled[n * pooled_size..(n + 1) * pooled_size],
+                    );
+                }
                 let mut concentration = self.concentration(s);
                 if flip {
                     concentration.invert_axis(ndarray::Axis(0));
@@ -244,7 +270,17 @@ impl TrainingData {
         Ok((
             RoomBatch {
                 rooms: t(room_in, b, ROOM_CHANNELS),
-                taps: SourceTaps::new(&taps, device),
+                taps: SourceTaps::new(
+                    &taps,
+                    pool.map(|k| {
+                        let (hs, ws) = (h / k, w / k);
+                        Tensor::<4>::from_data(
+                            TensorData::new(pooled, [b * m, COARSE_SOURCE_PLANES, hs, ws]),
+                            device,
+                        )
+                    }),
+                    device,
+                ),
                 sources: t(source_in, b * m, SOURCE_PLANES),
             },
             t(target, b * m, 1),

@@ -173,9 +173,9 @@ const ROOM_OF_ANALYTIC: [usize; 5] = [0, 1, 3, 4, 5];
 impl PlumeNet {
     /// An operator network `to` that starts from this trained U-Net (of architecture `from`,
     /// analytic inputs, no prior skip, the same levels, filters, kernel and convolutions per
-    /// level): every convolution of the U-Net's body is copied, the first one reading only the
-    /// room's channels; the head that gives the room planes and the per-source head are drawn
-    /// from `seed`.
+    /// level): every convolution of the U-Net's body is copied (of the decoder, the levels the
+    /// operator network keeps), the first one reading only the room's channels; the head that
+    /// gives the room planes and the per-source part are drawn from `seed`.
     ///
     /// # Errors
     /// [`Error::Model`] when the architectures do not fit or a weight cannot be read.
@@ -219,7 +219,8 @@ impl PlumeNet {
                 }
             }
         }
-        for d in 0..levels - 1 {
+        // The coarse form decodes only down to its level: its shallower decoders stay out.
+        for d in 0..net.decoders.len() {
             let l = levels - 2 - d;
             embed_up(
                 &mut net.ups[d],
