@@ -1255,7 +1255,8 @@ fn the_coarse_operator_networks_bank_is_its_training_pass() {
 }
 
 /// A coarse per-source network that pools deeper than the room's U-Net, or has no levels, is
-/// refused before training starts.
+/// refused before training starts, and a model whose `config.json` says so (its weights fit
+/// any level) is refused on loading with one line.
 #[test]
 fn a_coarse_operator_network_refuses_levels_the_room_net_lacks() {
     let tmp = tempfile::tempdir().unwrap();
@@ -1271,6 +1272,16 @@ fn a_coarse_operator_network_refuses_levels_the_room_net_lacks() {
     let empty = with(CoarseConfig::new().with_level(1).with_filters(vec![]));
     assert_err(train(&data, &empty, &out, &mut |_| ()), "non-empty");
     assert!(!out.join("config.json").exists());
+
+    train(&data, &tiny_coarse(1), &out, &mut |_| ()).unwrap();
+    let path = out.join("config.json");
+    let mut config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    config["architecture"]["operator"]["coarse"]["level"] = serde_json::json!(5);
+    std::fs::write(&path, config.to_string()).unwrap();
+    let err = Surrogate::load(&out).unwrap_err();
+    assert!(matches!(err, Error::Model(_)), "{err}");
+    assert!(err.to_string().contains("pools deeper"), "{err}");
 }
 
 /// Trains `config` on `data` into `dir` and compares its fused bank with its training pass in

@@ -385,6 +385,30 @@ impl PlumeNetConfig {
             .map(|c| 1 << c.level)
     }
 
+    /// What makes a coarse per-source network ([`CoarseConfig`]) impossible to build on this
+    /// room U-Net, if anything: no levels, a channel count of zero or an even kernel, or more
+    /// pooling than the room's U-Net has (the grid is padded to whole pooling steps of the
+    /// room's U-Net only).
+    pub fn coarse_problem(&self) -> Option<String> {
+        let c = self.operator.as_ref()?.coarse.as_ref()?;
+        if c.filters.is_empty() || c.filters.contains(&0) || c.kernel_size % 2 == 0 {
+            return Some(
+                "a coarse per-source network needs non-empty, positive filters and an odd \
+                 kernel size"
+                    .into(),
+            );
+        }
+        (c.level + c.filters.len() > self.filters.len()).then(|| {
+            format!(
+                "a coarse per-source network at level {} with {} levels pools deeper than the \
+                 room's U-Net of {} levels",
+                c.level,
+                c.filters.len(),
+                self.filters.len()
+            )
+        })
+    }
+
     /// Whether the analytic prior skips to the head.
     pub fn skips_prior(&self) -> bool {
         self.prior_skip == Some(true)

@@ -140,6 +140,9 @@ impl SavedModel {
                 saved.format
             )));
         }
+        if let Some(problem) = saved.architecture.coarse_problem() {
+            return Err(Error::Model(format!("{}: {problem}", dir.display())));
+        }
         let path = dir.join("weights.bpk");
         let mismatch = || {
             Error::Model(format!(

@@ -77,22 +77,8 @@ fn check(config: &TrainingConfig, data: &TrainingData) -> Result<()> {
         if op.groups == 0 || op.group_size == 0 || op.hidden == 0 {
             return bad("an operator network needs at least one group, term and hidden channel");
         }
-        if let Some(c) = &op.coarse {
-            if c.filters.is_empty() || c.filters.contains(&0) || c.kernel_size % 2 == 0 {
-                return bad(
-                    "a coarse per-source network needs non-empty, positive filters and an odd \
-                     kernel size",
-                );
-            }
-            if c.level + c.filters.len() > config.model.filters.len() {
-                return Err(Error::Parameter(format!(
-                    "a coarse per-source network at level {} with {} levels pools deeper than \
-                     the room's U-Net of {} levels",
-                    c.level,
-                    c.filters.len(),
-                    config.model.filters.len()
-                )));
-            }
+        if let Some(problem) = config.model.coarse_problem() {
+            return Err(Error::Parameter(problem));
         }
         let step = 1 << (config.model.filters.len() - 1);
         if config.pad_cells % step != 0 {
