@@ -1256,7 +1256,8 @@ fn the_coarse_operator_networks_bank_is_its_training_pass() {
 
 /// A coarse per-source network that pools deeper than the room's U-Net, or has no levels, is
 /// refused before training starts, and a model whose `config.json` says so (its weights fit
-/// any level) is refused on loading with one line.
+/// any level), or names a field of the coarse network this plumenet does not know, is refused
+/// on loading with one line.
 #[test]
 fn a_coarse_operator_network_refuses_levels_the_room_net_lacks() {
     let tmp = tempfile::tempdir().unwrap();
@@ -1277,11 +1278,22 @@ fn a_coarse_operator_network_refuses_levels_the_room_net_lacks() {
     let path = out.join("config.json");
     let mut config: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let trained = config.clone();
     config["architecture"]["operator"]["coarse"]["level"] = serde_json::json!(5);
     std::fs::write(&path, config.to_string()).unwrap();
     let err = Surrogate::load(&out).unwrap_err();
     assert!(matches!(err, Error::Model(_)), "{err}");
     assert!(err.to_string().contains("pools deeper"), "{err}");
+    // A field of the coarse network this plumenet does not know is refused, not ignored.
+    let mut config = trained;
+    config["architecture"]["operator"]["coarse"]["stride"] = serde_json::json!(2);
+    std::fs::write(&path, config.to_string()).unwrap();
+    let err = Surrogate::load(&out).unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("has a field \"operator.coarse.stride\""),
+        "{err}"
+    );
 }
 
 /// Trains `config` on `data` into `dir` and compares its fused bank with its training pass in

@@ -121,7 +121,7 @@ impl SavedModel {
         if let (Some(written), Some(known)) = (
             written.get("architecture").and_then(|a| a.as_object()),
             known.as_object(),
-        ) && let Some(unknown) = written.keys().find(|k| !known.contains_key(*k))
+        ) && let Some(unknown) = unknown_field(written, known)
         {
             return Err(Error::Model(format!(
                 "{}: the architecture has a field {unknown:?} this plumenet does not know \
@@ -253,6 +253,25 @@ pub fn weights_bytes(net: &PlumeNet) -> Result<Vec<u8>> {
 /// [`Error::Io`] when unreadable, [`Error::Model`] for a truncated, foreign or mismatched file.
 pub fn load_weights(net: PlumeNet, path: &Path) -> Result<PlumeNet> {
     weights_from_bytes(net, read(path)?, path)
+}
+
+/// The first field of `written` that `known` lacks, looking into the objects both hold (an
+/// operator network's sizes, its coarse network's), as a dotted path.
+fn unknown_field(
+    written: &serde_json::Map<String, serde_json::Value>,
+    known: &serde_json::Map<String, serde_json::Value>,
+) -> Option<String> {
+    written
+        .iter()
+        .find_map(|(key, value)| match known.get(key) {
+            None => Some(key.clone()),
+            Some(inner) => match (value.as_object(), inner.as_object()) {
+                (Some(value), Some(inner)) => {
+                    unknown_field(value, inner).map(|field| format!("{key}.{field}"))
+                }
+                _ => None,
+            },
+        })
 }
 
 /// Loads burnpack `bytes` (read from `path`) into a network of the matching architecture.
