@@ -1,6 +1,7 @@
-//! The coarse form of an operator network ([`super::model::CoarseConfig`]) on the CPU for banks:
-//! each source's planes pooled to the network's level straight from the sources' tables, and
-//! the network's correction upsampled and added to the prior, so that no source's
+//! The coarse form of an operator network ([`super::model::CoarseConfig`]) on the CPU: the
+//! anchors of sources and their planes pooled to the network's level (for training from planes
+//! encoded cell by cell, for banks straight from the sources' tables), and for banks the
+//! network's correction upsampled and added to each source's prior, so that no source's
 //! full-resolution planes are ever stored (training's Burn pass,
 //! [`super::model::CoarseNet::fields`], builds them; the tests hold the two together).
 
@@ -31,8 +32,8 @@ pub fn upsampling_taps(n_in: usize, n_out: usize) -> Vec<Tap> {
 /// The anchor of canonical `source` (m) for a network pooling by `k`: the centre of the
 /// `k x k` block of cells that holds it. Every source of one block shares its correction.
 pub fn anchor(source: [f64; 2], cell_m: f64, k: usize) -> [f64; 2] {
-    let block = k as f64 * cell_m;
-    source.map(|v| ((v / block).floor() + 0.5) * block)
+    let (row, column) = block(source, cell_m, k);
+    [column, row].map(|n| (n as f64 + 0.5) * k as f64 * cell_m)
 }
 
 /// The block of cells ([`anchor`]) that holds canonical `source`, `(row, column)`.

@@ -257,7 +257,7 @@ impl Surrogate {
         let weight = 1.0 / self.views() as f32;
         // An operator network's room pass and room terms (the coarse form's room share), once
         // per view.
-        let head = if self.net.is_operator() && !self.net.is_coarse() {
+        let head = if self.net.operator.is_some() {
             Some(FusedHead::of(&self.net)?)
         } else {
             None

@@ -104,8 +104,8 @@ pub struct CoarseConfig {
 }
 
 /// Planes a coarse per-source network reads per source: the means of the per-source planes
-/// over each coarse cell, the prior's maximum there, and the cell centre's offset from the
-/// source along and across the wind in [`COARSE_OFFSET_CELLS`].
+/// of the source's anchor over each coarse cell, the prior's maximum there, and the cell
+/// centre's offset from the anchor along and across the wind in [`COARSE_OFFSET_CELLS`].
 pub const COARSE_SOURCE_PLANES: usize = SOURCE_PLANES + 3;
 
 /// Scale of a coarse per-source network's offset planes, in grid cells (10 m of 0.125 m): they
@@ -318,6 +318,15 @@ fn encode_decode(
         x = dec.forward(Tensor::cat(vec![up.forward(x), skip], 1), None, imp);
     }
     x
+}
+
+/// Room planes `[B, C, H, W]` repeated for each of the `M` sources of every room,
+/// `[B M, C, H, W]` (room-major).
+fn per_source(room: Tensor<4>, m: usize) -> Tensor<4> {
+    let [b, c, h, w] = room.dims();
+    room.unsqueeze_dim::<5>(1)
+        .expand([b, m, c, h, w])
+        .reshape([b * m, c, h, w])
 }
 
 /// The U-Net.
@@ -603,11 +612,7 @@ impl PlumeNet {
             .matmul(trunk)
             .swap_dims(1, 2)
             .reshape([bm, j, h, w]);
-        let room = planes
-            .slice([0..b, 2 * k..outputs, 0..h, 0..w])
-            .unsqueeze_dim::<5>(1)
-            .expand([b, m, outputs - 2 * k, h, w])
-            .reshape([bm, outputs - 2 * k, h, w]);
+        let room = per_source(planes.slice([0..b, 2 * k..outputs, 0..h, 0..w]), m);
         let prior = sources.clone().slice([0..bm, 0..1, 0..h, 0..w]);
         let x = Tensor::cat(vec![z, room, sources], 1);
         let hidden = same_conv(&op.mix, x, true, imp);
@@ -635,13 +640,8 @@ impl CoarseNet {
         imp: ConvImpl,
     ) -> Tensor<4> {
         let b = planes.dims()[0];
-        let share = self.room_share(planes, imp);
-        let [_, c, hs, ws] = share.dims();
         let [bm, _, h, w] = sources.dims();
-        let share = share
-            .unsqueeze_dim::<5>(1)
-            .expand([b, bm / b, c, hs, ws])
-            .reshape([bm, c, hs, ws]);
+        let share = per_source(self.room_share(planes, imp), bm / b);
         let prior = sources.slice([0..bm, 0..1, 0..h, 0..w]);
         interpolate(
             self.correction(share, pooled, imp),
@@ -659,8 +659,7 @@ impl CoarseNet {
 
     /// The correction `[n, 1, H / 2^l, W / 2^l]` to the transformed prior of `n` sources from
     /// the pooled planes of their anchors `[n, COARSE_SOURCE_PLANES, H / 2^l, W / 2^l]` and the
-    /// room share, expanded
-    /// to every source or of one room (`[1, C, ..]`, broadcast).
+    /// room share, expanded to every source or of one room (`[1, C, ..]`, broadcast).
     pub fn correction(&self, share: Tensor<4>, pooled: Tensor<4>, imp: ConvImpl) -> Tensor<4> {
         let parts = (
             &self.encoders[..],
