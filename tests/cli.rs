@@ -1283,21 +1283,38 @@ fn the_dataset_and_model_commands_run_end_to_end() {
     );
     assert!(!more.contains("epoch   1 "), "{more}");
 
-    let scores = tmp.path().join("eval.json");
-    plumenet_ok(&[
-        "eval",
-        "--model",
-        &dir("model"),
-        "--data",
-        &dir("whole"),
-        "--json",
-        scores.to_str().unwrap(),
-    ]);
-    let scores = read_json(&scores);
+    // `eval` with `extra` flags: its JSON report, or its failure.
+    let eval = |name: &str, extra: &[&str]| {
+        let path = tmp.path().join(format!("{name}.json"));
+        let (model, data) = (dir("model"), dir("whole"));
+        let mut args = vec!["eval", "--model", &model, "--data", &data];
+        args.extend(extra);
+        args.extend(["--json", path.to_str().unwrap()]);
+        let out = plumenet(&args);
+        (out.status.success()).then(|| read_json(&path)).ok_or(out)
+    };
+    let scores = eval("eval", &[]).unwrap();
     assert_eq!(scores["summary"]["maps"], 6);
     assert_eq!(scores["maps"].as_array().unwrap().len(), 6);
     let l2 = scores["summary"]["median_relative_l2"].as_f64().unwrap();
     assert!(l2.is_finite() && l2 >= 0.0, "{l2}");
+    // The coarse form's bound: at level 0 the best correction is the truth itself; at level 2
+    // (0.5 m cells) it misses.
+    let exact = eval("bound-0", &["--coarse-bound", "0"]).unwrap()["summary"].clone();
+    assert!(
+        exact["median_relative_l2"].as_f64().unwrap() < 1e-5,
+        "{exact}"
+    );
+    assert!(exact["p10_spearman"].as_f64().unwrap() > 0.9999, "{exact}");
+    let coarse =
+        eval("bound-2", &["--coarse-bound", "2"]).unwrap()["summary"]["median_relative_l2"]
+            .as_f64()
+            .unwrap();
+    assert!(coarse > 1e-3 && coarse.is_finite(), "{coarse}");
+    assert_clean_failure(
+        &eval("bound-5", &["--coarse-bound", "5"]).unwrap_err(),
+        "--coarse-bound",
+    );
 
     let field = tmp.path().join("field.npy");
     plumenet_ok(&[

@@ -1498,3 +1498,64 @@ fn coarse_anchors_are_the_centres_of_their_blocks() {
         );
     }
 }
+
+/// The coarse form's accuracy bound: the best correction on coarse cells recovers a field that
+/// is itself a coarse field upsampled (bilinear with half-pixel centres and clamped edges,
+/// computed here from the definition), and for any other target no coarse field does better on
+/// the free cells (a perturbation of the fit only adds error).
+#[test]
+fn the_best_coarse_correction_is_the_least_squares_fit() {
+    use plumenet::surrogate::coarse::best_correction;
+    let (h, w, k) = (13usize, 22usize, 4usize);
+    let (hc, wc) = (h.div_ceil(k), w.div_ceil(k));
+    let free = ndarray::Array2::from_shape_fn((h, w), |(j, i)| {
+        !((4..7).contains(&j) && (5..12).contains(&i))
+    });
+    let coarse = |seed: f32| {
+        ndarray::Array2::from_shape_fn((hc, wc), |(j, i)| {
+            ((j * 7 + i * 13) as f32 * 0.37 + seed).sin()
+        })
+    };
+    let upsampled = |g: &ndarray::Array2<f32>| {
+        ndarray::Array2::from_shape_fn((h, w), |(j, i)| {
+            let at =
+                |o: usize, n: usize| ((o as f32 + 0.5) / k as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+            let (y, x) = (at(j, hc), at(i, wc));
+            let (y0, x0) = (y.floor() as usize, x.floor() as usize);
+            let (y1, x1) = ((y0 + 1).min(hc - 1), (x0 + 1).min(wc - 1));
+            let (fy, fx) = (y - y0 as f32, x - x0 as f32);
+            (1.0 - fy) * ((1.0 - fx) * g[[y0, x0]] + fx * g[[y0, x1]])
+                + fy * ((1.0 - fx) * g[[y1, x0]] + fx * g[[y1, x1]])
+        })
+    };
+    let target = upsampled(&coarse(0.0));
+    let fit = best_correction(target.view(), free.view(), k);
+    for ((t, f), &m) in target.iter().zip(&fit).zip(&free) {
+        if m {
+            assert!((t - f).abs() < 1e-5, "{t} against {f}");
+        }
+    }
+
+    let target = ndarray::Array2::from_shape_fn((h, w), |(j, i)| ((j * j + 3 * i) as f32).cos());
+    let fit = best_correction(target.view(), free.view(), k);
+    let error = |field: &ndarray::Array2<f32>| -> f64 {
+        ndarray::Zip::from(field)
+            .and(&target)
+            .and(&free)
+            .fold(0.0, |e, &f, &t, &m| {
+                e + if m { f64::from(f - t).powi(2) } else { 0.0 }
+            })
+    };
+    let best = error(&fit);
+    assert!(best > 1e-3, "a rough target is not a coarse field: {best}");
+    for seed in [1.0, 2.0, 3.0] {
+        for step in [-0.05, 0.05] {
+            let moved = &fit + &(upsampled(&coarse(seed)) * step);
+            assert!(
+                error(&moved) > best,
+                "seed {seed}, step {step}: {} <= {best}",
+                error(&moved)
+            );
+        }
+    }
+}

@@ -5,6 +5,8 @@
 //! full-resolution planes are ever stored (training's Burn pass,
 //! [`super::model::CoarseNet::fields`], builds them; the tests hold the two together).
 
+use ndarray::{Array2, ArrayView2};
+
 use super::data::RoomPlanes;
 use super::head::SourceTables;
 use super::model::{COARSE_OFFSET_CELLS, COARSE_SOURCE_PLANES};
@@ -128,4 +130,97 @@ pub fn fine_field(
             *slot = if m == 0.0 { p } else { 0.0 } + a + (b - a) * fx;
         }
     }
+}
+
+/// `coarse` (`[h, w]` values, row-major) upsampled bilinearly ([`upsampling_taps`]) to the
+/// `rows x cols` taps' grid.
+fn upsample(coarse: &[f64], w: usize, (rows, cols): (&[Tap], &[Tap])) -> Vec<f64> {
+    let mut fine = Vec::with_capacity(rows.len() * cols.len());
+    for &(r0, r1, fy) in rows {
+        let fy = f64::from(fy);
+        for &(c0, c1, fx) in cols {
+            let fx = f64::from(fx);
+            let at = |r: usize, c: usize| coarse[r * w + c];
+            let low = at(r0, c0) + (at(r0, c1) - at(r0, c0)) * fx;
+            let high = at(r1, c0) + (at(r1, c1) - at(r1, c0)) * fx;
+            fine.push(low + (high - low) * fy);
+        }
+    }
+    fine
+}
+
+/// The transpose of [`upsample`]: each fine value spread back onto its four coarse taps.
+fn upsample_transposed(
+    fine: &[f64],
+    (h, w): (usize, usize),
+    (rows, cols): (&[Tap], &[Tap]),
+) -> Vec<f64> {
+    let mut coarse = vec![0.0; h * w];
+    for (&(r0, r1, fy), row) in rows.iter().zip(fine.chunks_exact(cols.len())) {
+        let fy = f64::from(fy);
+        for (&(c0, c1, fx), &v) in cols.iter().zip(row) {
+            let fx = f64::from(fx);
+            coarse[r0 * w + c0] += (1.0 - fy) * (1.0 - fx) * v;
+            coarse[r0 * w + c1] += (1.0 - fy) * fx * v;
+            coarse[r1 * w + c0] += fy * (1.0 - fx) * v;
+            coarse[r1 * w + c1] += fy * fx * v;
+        }
+    }
+    coarse
+}
+
+/// The best correction a coarse form pooling by `k` can give: the field on
+/// `(⌈H / k⌉, ⌈W / k⌉)` coarse cells whose bilinear upsampling ([`upsampling_taps`], as the
+/// coarse form's) fits `target` (`[H, W]`) with the least squared error over the cells where
+/// `free` holds, returned upsampled to `[H, W]`. Solved by conjugate gradients on the normal
+/// equations, to a residual of `1e-9` of the right-hand side's norm. A correction a trained
+/// network could give is no closer, so this bounds the coarse form's accuracy.
+pub fn best_correction(target: ArrayView2<f32>, free: ArrayView2<bool>, k: usize) -> Array2<f32> {
+    let (h, w) = target.dim();
+    let (hc, wc) = (h.div_ceil(k), w.div_ceil(k));
+    let (rows, cols) = (
+        upsampling_taps(hc, hc * k)[..h].to_vec(),
+        upsampling_taps(wc, wc * k)[..w].to_vec(),
+    );
+    let taps = (rows.as_slice(), cols.as_slice());
+    let mask: Vec<f64> = free.iter().map(|&f| f64::from(u8::from(f))).collect();
+    // The normal operator A^T M A of the upsampling A restricted to the free cells M.
+    let normal = |g: &[f64]| {
+        let masked: Vec<f64> = upsample(g, wc, taps)
+            .iter()
+            .zip(&mask)
+            .map(|(v, m)| v * m)
+            .collect();
+        upsample_transposed(&masked, (hc, wc), taps)
+    };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let masked_target: Vec<f64> = target
+        .iter()
+        .zip(&mask)
+        .map(|(&t, m)| f64::from(t) * m)
+        .collect();
+    let rhs = upsample_transposed(&masked_target, (hc, wc), taps);
+    let mut g = vec![0.0; hc * wc];
+    let mut r = rhs.clone();
+    let mut p = r.clone();
+    let mut rr = dot(&r, &r);
+    let stop = 1e-18 * rr;
+    for _ in 0..hc * wc {
+        if rr <= stop {
+            break;
+        }
+        let q = normal(&p);
+        let alpha = rr / dot(&p, &q);
+        g.iter_mut().zip(&p).for_each(|(g, p)| *g += alpha * p);
+        r.iter_mut().zip(&q).for_each(|(r, q)| *r -= alpha * q);
+        let next = dot(&r, &r);
+        let beta = next / rr;
+        p.iter_mut().zip(&r).for_each(|(p, r)| *p = r + beta * *p);
+        rr = next;
+    }
+    Array2::from_shape_vec(
+        (h, w),
+        upsample(&g, wc, taps).iter().map(|&v| v as f32).collect(),
+    )
+    .expect("the upsampled grid is the target's")
 }

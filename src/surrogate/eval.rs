@@ -1,11 +1,13 @@
 //! Surrogate accuracy on a dataset: per-map relative L2 error and Spearman rank correlation at
 //! sampled free-space points (the rank feature of the STE only needs the ordering right).
 
+use ndarray::{Array3, ArrayView2};
 use rand::SeedableRng;
 use rand::seq::index::sample;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::coarse::best_correction;
 use super::data::{SIZE_CLASSES, TrainingData, size_class};
 use super::inference::Surrogate;
 use crate::error::{Error, Result};
@@ -158,6 +160,81 @@ pub fn evaluate(
     data: &TrainingData,
     settings: &EvalSettings,
 ) -> Result<Evaluation> {
+    evaluate_with(data, settings, |layout, samples| {
+        let sources: Vec<[f64; 2]> = samples.iter().map(|&s| data.source_xy[s]).collect();
+        model.predict_many(layout, &sources)
+    })
+}
+
+/// The accuracy bound of a coarse form ([`super::model::CoarseConfig`]) of pooling level
+/// `level` (cells `2^level` times the grid's): every map of `data` scored as [`evaluate`] does
+/// for the best prediction such a form can make, `model`'s transformed analytic prior plus the
+/// correction on coarse cells that fits the transformed truth best ([`best_correction`]). No
+/// trained network of that level predicts closer (in the transformed space the networks are
+/// trained in). Level 0 returns the truth.
+///
+/// # Errors
+/// As [`evaluate`]; [`Error::Model`] when `model` has no analytic prior.
+pub fn coarse_bound(
+    model: &Surrogate,
+    data: &TrainingData,
+    level: u32,
+    settings: &EvalSettings,
+) -> Result<Evaluation> {
+    let saved = model.saved();
+    let inputs = saved.training.inputs;
+    if !inputs.has_prior() {
+        return Err(Error::Model(format!(
+            "a coarse form adds its correction to the analytic prior, which the inputs {inputs:?} lack"
+        )));
+    }
+    let norm = saved.normalization;
+    let k = 1usize << level;
+    let channels = inputs.channels();
+    evaluate_with(data, settings, |_, samples| {
+        let room = data.room(data.source_layout[samples[0]]);
+        let (h, w) = room.shape();
+        let speed = room.speed_mps;
+        let free = room.mask.mapv(|m| m == 0.0);
+        let mut out = Array3::zeros((samples.len(), h, w));
+        let mut planes = vec![0.0f32; channels * h * w];
+        for (mut map, &s) in out.outer_iter_mut().zip(samples) {
+            planes.fill(0.0);
+            room.encode(
+                data.source_xy[s],
+                inputs,
+                saved.encoding,
+                &norm,
+                (h, w),
+                &mut planes,
+            )?;
+            let prior = ArrayView2::from_shape((h, w), &planes[(channels - 1) * h * w..])
+                .expect("the prior plane is the room's grid");
+            let residual = ndarray::Zip::from(data.concentration(s))
+                .and(&prior)
+                .map_collect(|&c, &p| norm.forward(c, speed) - p);
+            let correction = best_correction(residual.view(), free.view(), k);
+            ndarray::Zip::from(&mut map)
+                .and(&prior)
+                .and(&correction)
+                .and(&free)
+                .for_each(|m, &p, &c, &f| {
+                    if f {
+                        *m = norm.inverse(p + c, speed);
+                    }
+                });
+        }
+        Ok(out)
+    })
+}
+
+/// Scores every map of `data` as [`evaluate`] does, the maps of each layout predicted by
+/// `predict(canonical layout, samples)` as a `[samples, H, W]` array.
+fn evaluate_with(
+    data: &TrainingData,
+    settings: &EvalSettings,
+    mut predict: impl FnMut(&Layout, &[usize]) -> Result<Array3<f32>>,
+) -> Result<Evaluation> {
     let mut scores = Vec::with_capacity(data.len());
     for (l, real) in data.layouts().iter().enumerate() {
         // The dataset is held in the canonical frame (see `TrainingData`).
@@ -168,8 +245,7 @@ pub fn evaluate(
         if samples.is_empty() {
             continue;
         }
-        let sources: Vec<[f64; 2]> = samples.iter().map(|&s| data.source_xy[s]).collect();
-        let predicted = model.predict_many(&layout, &sources)?;
+        let predicted = predict(&layout, &samples)?;
         let free: Vec<(usize, usize)> = layout
             .solid()
             .indexed_iter()
