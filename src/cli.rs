@@ -19,7 +19,7 @@ use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::report::{FieldPanel, FieldPlot, Panel, save_figure};
 use plumenet::surrogate::config::{Selection, WarmStart};
 use plumenet::surrogate::data::{InputSet, SourceEncoding};
-use plumenet::surrogate::eval::{EvalSettings, Summary, coarse_bound, evaluate};
+use plumenet::surrogate::eval::{BoundSharing, EvalSettings, Summary, coarse_bound, evaluate};
 use plumenet::surrogate::model::{CoarseConfig, OperatorConfig, ROOM_CHANNELS};
 use plumenet::surrogate::{PlumeNetConfig, Surrogate, TrainEvent, TrainingConfig, TrainingData};
 
@@ -233,6 +233,11 @@ struct EvalArgs {
     /// fits the truth best, the bound of any trained network of that level (0 to 4).
     #[arg(long, value_name = "LEVEL", conflicts_with = "png", value_parser = clap::value_parser!(u32).range(0..=4))]
     coarse_bound: Option<u32>,
+    /// With --coarse-bound, sources share the correction of the centre of their block of
+    /// 2^LEVEL cells a side, fitted to that point's map (solved with the physics model), as the
+    /// coarse form shares corrections; maps whose block centre lies in an obstacle are left out.
+    #[arg(long, value_name = "LEVEL", requires = "coarse_bound", value_parser = clap::value_parser!(u32).range(1..=4))]
+    coarse_share: Option<u32>,
 }
 
 #[derive(Debug, Args)]
@@ -803,7 +808,12 @@ fn eval(a: EvalArgs) -> Result<()> {
         floor: a.floor,
     };
     let report = match a.coarse_bound {
-        Some(level) => coarse_bound(&model, &data, level, &settings)?,
+        Some(level) => {
+            let sharing = a
+                .coarse_share
+                .map_or(BoundSharing::Own, BoundSharing::Anchor);
+            coarse_bound(&model, &data, (level, sharing), &settings)?
+        }
         None => evaluate(&model, &data, &settings)?,
     };
     let line = |name: &str, s: &Summary| {

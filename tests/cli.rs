@@ -1311,6 +1311,13 @@ fn the_dataset_and_model_commands_run_end_to_end() {
             .as_f64()
             .unwrap();
     assert!(coarse > 1e-3 && coarse.is_finite(), "{coarse}");
+    // Shared by blocks of 2 x 2 cells, each source is predicted at level 0 by the map of its
+    // block's centre (at most 0.09 m away) moved by the difference of the two priors: no
+    // longer the truth, yet a map that overlaps it (maps that do not overlap score above 1).
+    let shared = eval("shared", &["--coarse-bound", "0", "--coarse-share", "1"]).unwrap();
+    let moved = shared["summary"]["median_relative_l2"].as_f64().unwrap();
+    assert!(moved > 1e-4 && moved < 1.0, "{shared}");
+    assert!(shared["summary"]["maps"].as_u64().unwrap() >= 1, "{shared}");
     assert_clean_failure(
         &eval("bound-5", &["--coarse-bound", "5"]).unwrap_err(),
         "--coarse-bound",

@@ -1,18 +1,20 @@
 //! Surrogate accuracy on a dataset: per-map relative L2 error and Spearman rank correlation at
 //! sampled free-space points (the rank feature of the STE only needs the ordering right).
 
-use ndarray::{Array3, ArrayView2};
+use ndarray::{Array2, ArrayView2, Axis, Zip};
 use rand::SeedableRng;
 use rand::seq::index::sample;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::coarse::best_correction;
+use super::coarse::{anchor, best_correction};
 use super::data::{SIZE_CLASSES, TrainingData, size_class};
 use super::inference::Surrogate;
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::layout::Layout;
+use crate::physics::transport::Transport;
+use crate::physics::wind::WindField;
 
 /// Accuracy of one map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -162,23 +164,38 @@ pub fn evaluate(
 ) -> Result<Evaluation> {
     evaluate_with(data, settings, |layout, samples| {
         let sources: Vec<[f64; 2]> = samples.iter().map(|&s| data.source_xy[s]).collect();
-        model.predict_many(layout, &sources)
+        let maps = model.predict_many(layout, &sources)?;
+        Ok(maps.outer_iter().map(|m| Some(m.to_owned())).collect())
     })
 }
 
-/// The accuracy bound of a coarse form ([`super::model::CoarseConfig`]) of pooling level
-/// `level` (cells `2^level` times the grid's): every map of `data` scored as [`evaluate`] does
-/// for the best prediction such a form can make, `model`'s transformed analytic prior plus the
-/// correction on coarse cells that fits the transformed truth best ([`best_correction`]). No
-/// trained network of that level predicts closer (in the transformed space the networks are
-/// trained in). Level 0 returns the truth.
+/// Which correction [`coarse_bound`] fits to a source's map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BoundSharing {
+    /// Each source its own correction, fitted to its own map.
+    Own,
+    /// Sources share the correction of the anchor of their block of `2^level` cells a side
+    /// ([`super::coarse::anchor`]), fitted to the anchor's map (solved with the physics model),
+    /// as the coarse form shares corrections at its level. A map whose anchor lies in an
+    /// obstacle has no such correction and is left out.
+    Anchor(u32),
+}
+
+/// The accuracy bound of a coarse form ([`super::model::CoarseConfig`]) whose correction lies on
+/// cells `2^level` times the grid's: every map of `data` scored as [`evaluate`] does for the
+/// best prediction such a form can make, `model`'s transformed analytic prior of the source
+/// plus the correction on coarse cells that fits the transformed truth best
+/// ([`best_correction`]), the source's own or its block anchor's (`sharing`). No trained
+/// network of that form predicts closer (in the transformed space the networks are trained
+/// in). Level 0 with each source's own correction returns the truth.
 ///
 /// # Errors
-/// As [`evaluate`]; [`Error::Model`] when `model` has no analytic prior.
+/// As [`evaluate`]; [`Error::Model`] when `model` has no analytic prior; the wind or transport
+/// solver's errors for anchors.
 pub fn coarse_bound(
     model: &Surrogate,
     data: &TrainingData,
-    level: u32,
+    (level, sharing): (u32, BoundSharing),
     settings: &EvalSettings,
 ) -> Result<Evaluation> {
     let saved = model.saved();
@@ -191,49 +208,73 @@ pub fn coarse_bound(
     let norm = saved.normalization;
     let k = 1usize << level;
     let channels = inputs.channels();
-    evaluate_with(data, settings, |_, samples| {
+    evaluate_with(data, settings, |layout, samples| {
         let room = data.room(data.source_layout[samples[0]]);
         let (h, w) = room.shape();
         let speed = room.speed_mps;
         let free = room.mask.mapv(|m| m == 0.0);
-        let mut out = Array3::zeros((samples.len(), h, w));
         let mut planes = vec![0.0f32; channels * h * w];
-        for (mut map, &s) in out.outer_iter_mut().zip(samples) {
+        let mut prior_of = |source: [f64; 2]| -> Result<Array2<f32>> {
             planes.fill(0.0);
-            room.encode(
-                data.source_xy[s],
-                inputs,
-                saved.encoding,
-                &norm,
-                (h, w),
-                &mut planes,
-            )?;
-            let prior = ArrayView2::from_shape((h, w), &planes[(channels - 1) * h * w..])
-                .expect("the prior plane is the room's grid");
-            let residual = ndarray::Zip::from(data.concentration(s))
-                .and(&prior)
+            room.encode(source, inputs, saved.encoding, &norm, (h, w), &mut planes)?;
+            Ok(
+                ArrayView2::from_shape((h, w), &planes[(channels - 1) * h * w..])
+                    .expect("the prior plane is the room's grid")
+                    .to_owned(),
+            )
+        };
+        // Each map's correction is fitted to the map of its source or of its block's anchor.
+        let fitted: Vec<Option<[f64; 2]>> = samples
+            .iter()
+            .map(|&s| match sharing {
+                BoundSharing::Own => Some(data.source_xy[s]),
+                BoundSharing::Anchor(share) => {
+                    let a = anchor(data.source_xy[s], room.cell_m, 1 << share);
+                    layout.check_source(a[0], a[1]).is_ok().then_some(a)
+                }
+            })
+            .collect();
+        let anchors: Vec<[f64; 2]> = fitted.iter().flatten().copied().collect();
+        let anchor_maps = match sharing {
+            BoundSharing::Anchor(_) if !anchors.is_empty() => {
+                Some(Transport::new(layout, &WindField::solve(layout)?)?.bank(&anchors)?)
+            }
+            _ => None,
+        };
+        let mut next_anchor = 0;
+        let mut maps = Vec::with_capacity(samples.len());
+        for (&s, at) in samples.iter().zip(&fitted) {
+            let Some(at) = *at else {
+                maps.push(None);
+                continue;
+            };
+            let truth = match &anchor_maps {
+                Some(fields) => fields.index_axis(Axis(0), next_anchor),
+                None => data.concentration(s),
+            };
+            next_anchor += 1;
+            let residual = Zip::from(truth)
+                .and(&prior_of(at)?)
                 .map_collect(|&c, &p| norm.forward(c, speed) - p);
             let correction = best_correction(residual.view(), free.view(), k);
-            ndarray::Zip::from(&mut map)
-                .and(&prior)
+            let mut map = prior_of(data.source_xy[s])?;
+            Zip::from(&mut map)
                 .and(&correction)
                 .and(&free)
-                .for_each(|m, &p, &c, &f| {
-                    if f {
-                        *m = norm.inverse(p + c, speed);
-                    }
-                });
+                .for_each(|m, &c, &f| *m = if f { norm.inverse(*m + c, speed) } else { 0.0 });
+            maps.push(Some(map));
         }
-        Ok(out)
+        Ok(maps)
     })
 }
 
 /// Scores every map of `data` as [`evaluate`] does, the maps of each layout predicted by
-/// `predict(canonical layout, samples)` as a `[samples, H, W]` array.
+/// `predict(canonical layout, samples)`, one `[H, W]` map per sample or `None` for a map left
+/// out.
 fn evaluate_with(
     data: &TrainingData,
     settings: &EvalSettings,
-    mut predict: impl FnMut(&Layout, &[usize]) -> Result<Array3<f32>>,
+    mut predict: impl FnMut(&Layout, &[usize]) -> Result<Vec<Option<Array2<f32>>>>,
 ) -> Result<Evaluation> {
     let mut scores = Vec::with_capacity(data.len());
     for (l, real) in data.layouts().iter().enumerate() {
@@ -252,9 +293,9 @@ fn evaluate_with(
             .filter(|(_, s)| !**s)
             .map(|(ji, _)| ji)
             .collect();
-        for (n, &s) in samples.iter().enumerate() {
+        for (&s, pred) in samples.iter().zip(&predicted) {
+            let Some(pred) = pred else { continue };
             let truth = data.concentration(s);
-            let pred = predicted.index_axis(ndarray::Axis(0), n);
             let (mut num, mut den) = (0.0, 0.0);
             for &(j, i) in &free {
                 num += f64::from(pred[[j, i]] - truth[[j, i]]).powi(2);
