@@ -234,6 +234,28 @@ fn every_command_has_help() {
     }
 }
 
+/// A reader that closes the pipe before the program prints (`plumenet ... | head -1`) ends
+/// it quietly, by the pipe's signal, never with a panic.
+#[cfg(unix)]
+#[test]
+fn a_closed_output_pipe_ends_the_program_without_a_panic() {
+    use std::os::unix::process::ExitStatusExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let field = tmp.path().join("p.npy");
+    let mut child = command()
+        .args(["predict", "--model", "models/default", "--layout", TUNNEL])
+        .args(["--source", "3,2", "--out", field.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(out.status.signal(), Some(libc::SIGPIPE), "{stderr}");
+}
+
 #[test]
 fn shipped_model_predicts_and_banks_the_paper_arena() {
     let tmp = tempfile::tempdir().unwrap();
