@@ -1277,6 +1277,10 @@ fn termination_needs_a_stable_concentrated_belief() {
     let default = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).termination;
     assert_eq!(default.region_radius_m, Some(REGION_RADIUS_M));
     assert_eq!(REGION_RADIUS_M, 1.5);
+    // It stops at the first iteration that meets it; the paper's entropy rule holds for two.
+    assert_eq!(default.stable_iterations, 1);
+    let papers = SteParams::for_model(Feature::Rank, 1.0).papers_rank();
+    assert_eq!(Termination::for_params(&papers).stable_iterations, 2);
     assert_err(
         by_area(0.0).check(72.0),
         "the target area must be a positive number of square metres no larger than the room's 72.0, got 0",
