@@ -1344,6 +1344,19 @@ fn the_dataset_and_model_commands_run_end_to_end() {
         &eval("bound-5", &["--coarse-bound", "5"]).unwrap_err(),
         "--coarse-bound",
     );
+    // A model without the analytic prior has no coarse bound.
+    assert_clean_failure(
+        &plumenet(&[
+            "eval",
+            "--model",
+            "models/arena-v1",
+            "--data",
+            &dir("whole"),
+            "--coarse-bound",
+            "1",
+        ]),
+        "inputs hold no analytic prior",
+    );
 
     let field = tmp.path().join("field.npy");
     plumenet_ok(&[

@@ -201,9 +201,10 @@ pub fn coarse_bound(
     let saved = model.saved();
     let inputs = saved.training.inputs;
     if !inputs.has_prior() {
-        return Err(Error::Model(format!(
-            "a coarse form adds its correction to the analytic prior, which the inputs {inputs:?} lack"
-        )));
+        return Err(Error::Model(
+            "this model's inputs hold no analytic prior, to which a coarse form adds its correction"
+                .into(),
+        ));
     }
     let norm = saved.normalization;
     let k = 1usize << level;
