@@ -1277,8 +1277,9 @@ fn termination_needs_a_stable_concentrated_belief() {
     let default = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII).termination;
     assert_eq!(default.region_radius_m, Some(REGION_RADIUS_M));
     assert_eq!(REGION_RADIUS_M, 1.5);
-    // It stops at the first iteration that meets it; the paper's entropy rule holds for two.
-    assert_eq!(default.stable_iterations, 1);
+    // Both rules must hold in two consecutive iterations (`docs/calibration.md`, "Waiting for
+    // a second compact region").
+    assert_eq!(default.stable_iterations, 2);
     let papers = SteParams::for_model(Feature::Rank, 1.0).papers_rank();
     assert_eq!(Termination::for_params(&papers).stable_iterations, 2);
     assert_err(

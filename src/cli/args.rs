@@ -406,9 +406,9 @@ pub struct RunArgs {
     )]
     target_area: Option<f64>,
     /// Consecutive concentrated iterations, around the same estimate, needed to stop
-    /// (1 = the paper's rule alone) [default: 1, 2 with --evidence-weight 1].
-    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule", value_parser = clap::value_parser!(u16).range(1..))]
-    stable_iterations: Option<u16>,
+    /// (1 = the paper's rule alone).
+    #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = Termination::default().stable_iterations as u16, value_parser = clap::value_parser!(u16).range(1..))]
+    stable_iterations: u16,
 }
 
 impl RunArgs {
@@ -435,9 +435,7 @@ impl RunArgs {
             c.termination.max_iterations = n;
             c.termination.grow_with_room = false;
         }
-        if let Some(n) = self.stable_iterations {
-            c.termination.stable_iterations = usize::from(n);
-        }
+        c.termination.stable_iterations = usize::from(self.stable_iterations);
         // An entropy threshold asks for the entropy rule; a target area for the area rule.
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;

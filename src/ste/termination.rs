@@ -79,12 +79,6 @@ impl Default for Termination {
 /// The default target area of the 90% credible region (m^2) for a tempered likelihood.
 pub const TARGET_AREA_M2: f64 = 1.0;
 
-/// The default [`Termination::stable_iterations`] for a tempered likelihood: the first
-/// iteration whose region meets the area, the radius and the plume rules ends the run. Waiting
-/// for a second such iteration costs every run an iteration and catches no run that the other
-/// rules let stop far off (`docs/calibration.md`, "Stopping at the first compact region").
-pub const TEMPERED_STABLE_ITERATIONS: usize = 1;
-
 /// The default [`Termination::region_radius_m`] for a tempered likelihood (m): where the
 /// calibration benchmark counts a converged run as wrong, so that a run stopped on a region
 /// within it is that far off only when the source lies outside its region altogether.
@@ -94,22 +88,16 @@ impl Termination {
     /// The rule that goes with the estimator's settings: a tempered likelihood
     /// ([`SteParams::evidence_weight`] below 1), whose credible regions are calibrated, stops
     /// when its 90% region covers at most [`TARGET_AREA_M2`] and the readings hold a plume
-    /// that the estimate's reaches, at the first iteration that meets them
-    /// ([`TEMPERED_STABLE_ITERATIONS`]); readings taken as independent (whose regions are
-    /// over-confident) stop on the entropy rule alone, as the paper's, held for two
-    /// iterations.
+    /// that the estimate's reaches;
+    /// readings taken as independent (whose regions are over-confident) stop on the entropy
+    /// rule alone, as the paper's.
     pub fn for_params(params: &SteParams) -> Self {
         let tempered = params.tempered();
-        let default = Self::default();
         Self {
             target_area_m2: tempered.then_some(TARGET_AREA_M2),
             region_radius_m: tempered.then_some(REGION_RADIUS_M),
             require_plume: tempered,
-            stable_iterations: match tempered {
-                true => TEMPERED_STABLE_ITERATIONS,
-                false => default.stable_iterations,
-            },
-            ..default
+            ..Self::default()
         }
     }
 
