@@ -22,7 +22,7 @@ use rayon::prelude::*;
 
 use super::conv::kernel::{Isa, load, store};
 use super::data::{Normalization, RoomPlanes};
-use super::model::PlumeNet;
+use super::model::{OFFSET_SCALE_M, PlumeNet};
 use crate::error::{Error, Result};
 
 /// The padded grid's width is a multiple of this (the widest vector: 16 lanes of AVX-512), so
@@ -265,7 +265,7 @@ fn table(
             *slot = norm.forward(room.unbounded_prior(dx, dy) as f32, room.speed_mps);
         }
     });
-    let tanh = |d: f64| (d / super::room_batch::OFFSET_SCALE_M).tanh() as f32;
+    let tanh = |d: f64| (d / OFFSET_SCALE_M).tanh() as f32;
     SourceTable {
         prior,
         dx: (0..tw)

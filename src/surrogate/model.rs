@@ -116,6 +116,9 @@ pub const COARSE_OFFSET_CELLS: f32 = 80.0;
 /// analytic prior and the source offset `tanh(dx / 2 m)`, `tanh(dy / 2 m)`.
 pub const SOURCE_PLANES: usize = 3;
 
+/// Scale of the source offset planes `tanh(d / OFFSET_SCALE_M)` of an operator network (m).
+pub(crate) const OFFSET_SCALE_M: f64 = 2.0;
+
 /// Added to each room plane's mean square before it is normalised ([`PlumeNet::room_planes`]).
 const PLANE_EPS: f32 = 1e-6;
 

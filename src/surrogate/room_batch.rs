@@ -8,14 +8,13 @@ use burn::prelude::*;
 
 use super::coarse;
 use super::data::{Normalization, RoomPlanes, TrainingData, padded_shape};
-use super::model::{COARSE_SOURCE_PLANES, ROOM_CHANNELS, SOURCE_PLANES, SourceTaps};
+use super::model::{
+    COARSE_SOURCE_PLANES, OFFSET_SCALE_M, ROOM_CHANNELS, SOURCE_PLANES, SourceTaps,
+};
 use crate::error::{Error, Result};
 
 /// The samples of one layout: an operator network's unit of batching.
 pub type RoomSamples = Vec<usize>;
-
-/// Scale of the source offset planes of an operator network (m).
-pub(crate) const OFFSET_SCALE_M: f64 = 2.0;
 
 /// An operator network's batch: `B` rooms with `M` sources each
 /// ([`crate::surrogate::model::PlumeNet::source_fields`]).
