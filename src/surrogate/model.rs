@@ -37,12 +37,13 @@ pub struct PlumeNetConfig {
     #[config(default = 3)]
     pub convs_per_level: usize,
     /// Hand the last input channel (the analytic prior) straight to the 1x1 head beside the
-    /// decoder's channels, so the network learns a correction to it (a residual). `None` (as in
-    /// models saved before it existed) means no.
+    /// decoder's channels, so the network learns a correction to it (a residual). `None` (what a
+    /// config without this field reads as) means no.
     pub prior_skip: Option<bool>,
     /// Make the network an operator network ([`OperatorConfig`]): the U-Net sees the room alone,
-    /// once, and the source enters in a light per-source head. `None` (as in models saved
-    /// before it existed) means the U-Net sees room and source together, one pass per source.
+    /// once, and the source enters in a light per-source head. `None` (what a config
+    /// without this field reads as) means the U-Net sees room and source together, one pass
+    /// per source.
     pub operator: Option<OperatorConfig>,
 }
 
@@ -71,7 +72,8 @@ pub struct OperatorConfig {
     #[config(default = 16)]
     pub hidden: usize,
     /// A coarse per-source network ([`CoarseConfig`]) in place of the bilinear form and its
-    /// head. `None` (as in models saved before it existed) means the bilinear form.
+    /// head. `None` (what a config without this field reads as) means the
+    /// bilinear form.
     pub coarse: Option<CoarseConfig>,
 }
 
