@@ -254,11 +254,15 @@ pub fn coarse_bound(
                 None => data.concentration(s),
             };
             next_anchor += 1;
+            let mut map = prior_of(data.source_xy[s])?;
+            let fitted_prior = match sharing {
+                BoundSharing::Own => map.clone(),
+                BoundSharing::Anchor(_) => prior_of(at)?,
+            };
             let residual = Zip::from(truth)
-                .and(&prior_of(at)?)
+                .and(&fitted_prior)
                 .map_collect(|&c, &p| norm.forward(c, speed) - p);
             let correction = best_correction(residual.view(), free.view(), k);
-            let mut map = prior_of(data.source_xy[s])?;
             Zip::from(&mut map)
                 .and(&correction)
                 .and(&free)
