@@ -1175,6 +1175,14 @@ fn bad_likelihood_settings_fail_before_the_bank() {
             "the background odds must be a positive number, got 0",
         ),
         (
+            &["localize", "--source", "4.5,2.5", "--leg-cost", "-1"][..],
+            "the leg cost must be a finite number of metres, zero or more, got -1",
+        ),
+        (
+            &["serve", "--leg-cost", "NaN"][..],
+            "the leg cost must be a finite number of metres, zero or more, got NaN",
+        ),
+        (
             &["calibration", "--quick", "--target-area", "0"][..],
             "the target area must be a positive number of square metres",
         ),
@@ -1638,7 +1646,8 @@ fn serve_refuses_a_state_file_of_another_session() {
 
 /// The calibration benchmark's quick form runs to success (one iteration per run, so that the
 /// banks are most of its cost) and writes its table, rows and picture: every suite with both
-/// plume models, each row's coverages between 0 and 1 and its run counts whole.
+/// plume models, each row's coverages between 0 and 1 and its run counts whole, and its
+/// median distance driven that of the suite's runs.
 #[test]
 fn the_calibration_benchmark_runs_in_its_quick_form() {
     let tmp = tempfile::tempdir().unwrap();
@@ -1681,6 +1690,24 @@ fn the_calibration_benchmark_runs_in_its_quick_form() {
             );
         }
         assert!(r["cover_50"].as_f64() <= r["cover_90"].as_f64(), "{r}");
+        // The median distance driven is the median of the suite's runs of that model.
+        let suite = r["suite"].as_str().unwrap().replace(' ', "-");
+        let runs_csv = std::fs::read_to_string(out.join(suite).join("runs.csv")).unwrap();
+        let mut distances: Vec<f64> = csv::Reader::from_reader(runs_csv.as_bytes())
+            .deserialize::<plumenet::study::experiment::RunRow>()
+            .map(|row| row.unwrap())
+            .filter(|row| row.model == r["model"].as_str().unwrap())
+            .map(|row| row.distance_m)
+            .collect();
+        assert_eq!(distances.len() as u64, runs, "{r}");
+        distances.sort_by(f64::total_cmp);
+        let n = distances.len();
+        let median = 0.5 * (distances[(n - 1) / 2] + distances[n / 2]);
+        assert!(median > 0.0, "{r}");
+        assert!(
+            (r["distance_median_m"].as_f64().unwrap() - median).abs() < 1e-9,
+            "{r}: {median}"
+        );
     }
     let csv = std::fs::read_to_string(out.join("calibration.csv")).unwrap();
     assert_eq!(csv.lines().count(), rows.len() + 1);

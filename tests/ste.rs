@@ -14,7 +14,7 @@ use plumenet::ste::banks::PRIOR_BAND_M;
 use plumenet::ste::params::RankParams;
 use plumenet::ste::posterior::{entropy, prior_support};
 use plumenet::ste::replay::{read_log, replay, thin};
-use plumenet::ste::robot::{Occupancy, path_length};
+use plumenet::ste::robot::{LEG_COST_M, Occupancy, path_length};
 use plumenet::ste::termination::REGION_RADIUS_M;
 use plumenet::ste::{
     Estimator, Feature, FeatureParams, FeatureTrack, MoxParams, MoxSensor, RobotParams, Sample,
@@ -823,6 +823,31 @@ fn sample_along(path: &[[f64; 2]]) -> Vec<[f64; 2]> {
     (0..=200)
         .map(|k| plumenet::ste::robot::point_at(path, len * f64::from(k) / 200.0))
         .collect()
+}
+
+/// Robot settings written without a leg cost read as the default cost; a negative,
+/// infinite or NaN cost is refused, and none (every leg worth its length alone) is allowed.
+#[test]
+fn a_robot_without_a_leg_cost_reads_as_the_default_and_a_bad_cost_is_refused() {
+    let mut written = serde_json::to_value(RobotParams::default()).unwrap();
+    assert!(
+        written
+            .as_object_mut()
+            .unwrap()
+            .remove("leg_cost_m")
+            .is_some()
+    );
+    let read: RobotParams = serde_json::from_value(written).unwrap();
+    assert_eq!(read, RobotParams::default());
+    assert_eq!(read.leg_cost_m, LEG_COST_M);
+    let with = |leg_cost_m: f64| RobotParams {
+        leg_cost_m,
+        ..RobotParams::default()
+    };
+    for bad in [-1.0, f64::INFINITY, f64::NAN] {
+        assert_err(with(bad).check(), "bad robot settings");
+    }
+    with(0.0).check().unwrap();
 }
 
 // ---------------------------------------------------------------- episodes

@@ -409,6 +409,22 @@ pub struct RunArgs {
     /// (1 = the paper's rule alone).
     #[arg(long, hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = Termination::default().stable_iterations as u16, value_parser = clap::value_parser!(u16).range(1..))]
     stable_iterations: u16,
+    /// What one more leg costs the robot (stopping, updating, turning), in metres of driving:
+    /// a larger cost makes fewer, longer legs.
+    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = plumenet::ste::robot::LEG_COST_M, value_parser = parse_leg_cost, allow_negative_numbers = true)]
+    leg_cost: f64,
+}
+
+/// A leg cost: a finite number of metres, zero or more.
+fn parse_leg_cost(s: &str) -> std::result::Result<f64, String> {
+    let m: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if m.is_finite() && m >= 0.0 {
+        Ok(m)
+    } else {
+        Err(format!(
+            "the leg cost must be a finite number of metres, zero or more, got {m}"
+        ))
+    }
 }
 
 impl RunArgs {
@@ -436,6 +452,7 @@ impl RunArgs {
             c.termination.grow_with_room = false;
         }
         c.termination.stable_iterations = usize::from(self.stable_iterations);
+        c.robot.leg_cost_m = self.leg_cost;
         // An entropy threshold asks for the entropy rule; a target area for the area rule.
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;

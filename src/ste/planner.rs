@@ -76,7 +76,6 @@ const CREDIBLE_MASS: f64 = 0.9;
 const MERGE_M: f64 = 1.0;
 const EXPLORE_GOALS: usize = 8;
 const MIN_GOAL_M: f64 = 1.0;
-const ITERATION_COST_M: f64 = 2.0;
 const LATTICE_M: f64 = 1.0;
 const DISTANCE_WEIGHT: f64 = 0.5;
 /// Goals around a centroid, `[downwind, across]` in metres (turned by the wind's direction).
@@ -107,6 +106,7 @@ pub struct Plan {
 #[derive(Debug, Clone)]
 pub struct Planner {
     kind: PlannerKind,
+    leg_cost_m: f64,
     rng: ChaCha8Rng,
 }
 
@@ -117,10 +117,13 @@ struct Hypotheses {
 }
 
 impl Planner {
-    /// A planner whose random choices come from `seed`.
-    pub fn new(kind: PlannerKind, seed: u64) -> Self {
+    /// A planner that counts `leg_cost_m` metres of driving for each leg
+    /// ([`RobotParams::leg_cost_m`](crate::ste::robot::RobotParams::leg_cost_m)), whose random
+    /// choices come from `seed`.
+    pub fn new(kind: PlannerKind, leg_cost_m: f64, seed: u64) -> Self {
         Self {
             kind,
+            leg_cost_m,
             rng: ChaCha8Rng::seed_from_u64(seed),
         }
     }
@@ -146,6 +149,7 @@ impl Planner {
                     position,
                     &goals,
                     est.params().evidence_weight,
+                    self.leg_cost_m,
                 )
             }
             PlannerKind::Baseline => baseline(&hyp, est, occupancy, position),
@@ -316,7 +320,8 @@ fn far_enough(position: [f64; 2], goal: [f64; 2]) -> bool {
     (goal[0] - position[0]).hypot(goal[1] - position[1]) >= MIN_GOAL_M
 }
 
-/// The goal whose path gains the most expected information per metre.
+/// The goal whose path gains the most expected information per metre, each leg counting
+/// `leg_cost_m` metres more than its length.
 fn best_by_path_gain(
     hyp: &Hypotheses,
     sampler: &FieldSampler,
@@ -324,6 +329,7 @@ fn best_by_path_gain(
     position: [f64; 2],
     goals: &[[f64; 2]],
     weight: f64,
+    leg_cost_m: f64,
 ) -> Option<Plan> {
     goals
         .iter()
@@ -331,7 +337,7 @@ fn best_by_path_gain(
         .filter_map(|&goal| {
             let path = occupancy.plan(position, goal)?;
             let gain = expected_gain(hyp, sampler, &path_points(&path), weight);
-            let score = gain / (path_length(&path) + ITERATION_COST_M);
+            let score = gain / (path_length(&path) + leg_cost_m);
             Some(Plan { goal, path, score })
         })
         .fold(None, |best: Option<Plan>, p| match best {
@@ -396,6 +402,27 @@ mod tests {
     use crate::layout::Layout;
     use crate::plume::{PhysicsSolver, PlumeModel};
 
+    /// A 4 m wide room `height_m` deep with the wind from the west, three sources at
+    /// `x = 0.5` m and `ys`, and hypotheses of them weighing `weights`.
+    fn three_sources(
+        height_m: f64,
+        ys: [f64; 3],
+        weights: [f64; 3],
+    ) -> (Layout, FieldSampler, Hypotheses) {
+        let layout = Layout::from_json(&format!(
+            r#"{{"width_m":4,"height_m":{height_m},"cell_m":0.125,"wind":{{"speed_mps":0.75}}}}"#
+        ))
+        .unwrap();
+        let candidates = ys.map(|y| [0.5, y]);
+        let bank = PhysicsSolver.bank(&layout, &candidates).unwrap();
+        let sampler = FieldSampler::new(&layout, &bank).unwrap();
+        let hyp = Hypotheses {
+            index: vec![0, 1, 2],
+            weight: weights.to_vec(),
+        };
+        (layout, sampler, hyp)
+    }
+
     /// Each observation's evidence weighs `weight`: a path sensed once at a weight gains what
     /// the same path sensed twice at half of it gains (the log-likelihoods add), and without
     /// the weight the twice-sensed path would gain more. Three sources side by side in a small
@@ -403,17 +430,7 @@ mod tests {
     /// tells the three apart for sure).
     #[test]
     fn each_observation_weighs_the_evidence_weight() {
-        let layout = Layout::from_json(
-            r#"{"width_m":4,"height_m":2,"cell_m":0.125,"wind":{"speed_mps":0.75}}"#,
-        )
-        .unwrap();
-        let candidates = [[0.5, 0.5], [0.5, 1.0], [0.5, 1.5]];
-        let bank = PhysicsSolver.bank(&layout, &candidates).unwrap();
-        let sampler = FieldSampler::new(&layout, &bank).unwrap();
-        let hyp = Hypotheses {
-            index: vec![0, 1, 2],
-            weight: vec![0.5, 0.25, 0.25],
-        };
+        let (_, sampler, hyp) = three_sources(2.0, [0.5, 1.0, 1.5], [0.5, 0.25, 0.25]);
         let path = [[2.0, 0.5], [3.0, 0.5]];
         let twice: Vec<[f64; 2]> = path.iter().flat_map(|&p| [p, p]).collect();
         for weight in [1.0, 0.2, 0.01] {
@@ -433,5 +450,48 @@ mod tests {
         let gain = |w: f64| expected_gain(&hyp, &sampler, &path, w);
         assert!(gain(0.01) < gain(0.2) && gain(0.2) < gain(1.0));
         assert_eq!(gain(0.0), 0.0);
+    }
+
+    /// Each leg counts its length plus the leg cost: without a cost the planner takes the
+    /// goal of most gain per metre, with a large one the goal of most gain, and its score is
+    /// the gain over the length plus the cost (both found here by trying every goal). Three
+    /// sources side by side in a small room, the robot downwind of them.
+    #[test]
+    fn a_leg_costs_its_length_plus_the_leg_cost() {
+        let (layout, sampler, hyp) = three_sources(4.0, [1.5, 2.0, 2.5], [0.4, 0.3, 0.3]);
+        let occupancy = Occupancy::new(&layout, 0.12).unwrap();
+        let position = [1.3, 1.0];
+        let goals = [[1.3, 3.0], [1.3, 3.8], [2.5, 3.0], [3.5, 2.0]];
+        let weight = 0.2;
+        let legs: Vec<(f64, f64)> = goals
+            .iter()
+            .map(|&g| {
+                let path = occupancy.plan(position, g).unwrap();
+                let gain = expected_gain(&hyp, &sampler, &path_points(&path), weight);
+                (gain, path_length(&path))
+            })
+            .collect();
+        let best = |cost: f64| {
+            (0..goals.len())
+                .max_by(|&a, &b| {
+                    let s = |k: usize| legs[k].0 / (legs[k].1 + cost);
+                    s(a).total_cmp(&s(b))
+                })
+                .unwrap()
+        };
+        // The fixture tells the two rules apart.
+        assert_ne!(best(0.0), best(1000.0), "{legs:?}");
+        for cost in [0.0, 2.0, 1000.0] {
+            let plan =
+                best_by_path_gain(&hyp, &sampler, &occupancy, position, &goals, weight, cost)
+                    .unwrap();
+            let k = best(cost);
+            assert_eq!(plan.goal, goals[k], "cost {cost}: {legs:?}");
+            let expected = legs[k].0 / (legs[k].1 + cost);
+            assert!(
+                (plan.score - expected).abs() <= 1e-12 * expected,
+                "cost {cost}"
+            );
+        }
     }
 }

@@ -56,6 +56,19 @@ pub struct RobotParams {
     pub tick_s: f64,
     /// How readings are collected.
     pub sampling: Sampling,
+    /// What one more leg costs the robot (stopping, updating the posterior, turning), in
+    /// metres of driving: the planner scores a leg by its expected gain over its length plus
+    /// this, so a larger cost makes fewer, longer legs. A config without the field reads as
+    /// [`LEG_COST_M`].
+    #[serde(default = "default_leg_cost_m")]
+    pub leg_cost_m: f64,
+}
+
+/// The default cost of one more leg (m of driving).
+pub const LEG_COST_M: f64 = 2.0;
+
+fn default_leg_cost_m() -> f64 {
+    LEG_COST_M
 }
 
 impl Default for RobotParams {
@@ -66,6 +79,7 @@ impl Default for RobotParams {
             clearance_m: 0.05,
             tick_s: 0.1,
             sampling: Sampling::InMotion,
+            leg_cost_m: LEG_COST_M,
         }
     }
 }
@@ -74,14 +88,16 @@ impl RobotParams {
     /// Checks the ranges.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for non-positive speed, tick or radius, negative clearance, or
-    /// stop-sense-go times that are negative or record nothing.
+    /// [`Error::Parameter`] for non-positive speed, tick or radius, negative clearance or leg
+    /// cost, or stop-sense-go times that are negative or record nothing.
     pub fn check(&self) -> Result<()> {
         let mut ok = [self.max_speed_mps, self.radius_m, self.tick_s]
             .iter()
             .all(|v| v.is_finite() && *v > 0.0)
             && self.clearance_m.is_finite()
-            && self.clearance_m >= 0.0;
+            && self.clearance_m >= 0.0
+            && self.leg_cost_m.is_finite()
+            && self.leg_cost_m >= 0.0;
         if let Sampling::StopSenseGo {
             spacing_m,
             settle_s,

@@ -192,6 +192,9 @@ pub struct CalibrationRow {
     pub unresolved: usize,
     /// Median iterations (0 for surveys).
     pub iterations_median: f64,
+    /// Median distance the robot drove (m): iterations count legs, and a robot pays for
+    /// metres and time.
+    pub distance_median_m: f64,
     /// Mean error of the highest-reading baseline (m).
     pub highest_error_mean_m: f64,
 }
@@ -220,6 +223,7 @@ impl CalibrationRow {
                 .filter(|r| r.paths == "planner" && !r.converged)
                 .count(),
             iterations_median: median(&column(|r| r.iterations as f64)),
+            distance_median_m: median(&column(|r| r.distance_m)),
             highest_error_mean_m: mean_std(&column(|r| r.highest_error_m)).0,
         }
     }
@@ -262,6 +266,7 @@ pub fn calibration_table(rows: &[CalibrationRow]) -> String {
         "converged > 1.5 m off",
         "unresolved",
         "median iterations",
+        "median distance (m)",
         "highest reading mean (m)",
     ];
     markdown_table(
@@ -281,6 +286,7 @@ pub fn calibration_table(rows: &[CalibrationRow]) -> String {
                 r.wrong_converged.to_string(),
                 r.unresolved.to_string(),
                 format!("{:.0}", r.iterations_median),
+                format!("{:.0}", r.distance_median_m),
                 format!("{:.2}", r.highest_error_mean_m),
             ]
         }),
