@@ -1,7 +1,7 @@
 //! The project's own files (README, docs, sources, tests, examples, scripts, CI) describe what
 //! the crate does; how it was developed belongs to git. This guard fails on the words that
 //! speak of the development itself: numbered work steps, references to tickets, figures
-//! dated "today", and paths of a developer's machine.
+//! dated by the day they were measured, and paths of a developer's machine.
 
 use std::path::{Path, PathBuf};
 
@@ -11,8 +11,8 @@ use crate::common::repo_path;
 /// splits some of them removed: so spelled, this file does not itself name what it forbids).
 const PHRASES: &[&str] = &[
     "to|day's",
-    "today,",
-    "today)",
+    "to|day,",
+    "to|day)",
     "the issue",
     "lent machine",
     "plumenet|-work",

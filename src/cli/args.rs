@@ -415,16 +415,12 @@ pub struct RunArgs {
     leg_cost: f64,
 }
 
-/// A leg cost: a finite number of metres, zero or more.
+/// A leg cost, checked as the library checks it ([`plumenet::ste::robot::check_leg_cost`]).
 fn parse_leg_cost(s: &str) -> std::result::Result<f64, String> {
     let m: f64 = s.parse().map_err(|e| format!("{e}"))?;
-    if m.is_finite() && m >= 0.0 {
-        Ok(m)
-    } else {
-        Err(format!(
-            "the leg cost must be a finite number of metres, zero or more, got {m}"
-        ))
-    }
+    plumenet::ste::robot::check_leg_cost(m)
+        .map(|()| m)
+        .map_err(|e| e.to_string())
 }
 
 impl RunArgs {

@@ -71,6 +71,20 @@ fn default_leg_cost_m() -> f64 {
     LEG_COST_M
 }
 
+/// Checks a leg cost ([`RobotParams::leg_cost_m`]): a finite number of metres, zero or more.
+///
+/// # Errors
+/// [`Error::Parameter`] otherwise.
+pub fn check_leg_cost(m: f64) -> Result<()> {
+    if m.is_finite() && m >= 0.0 {
+        Ok(())
+    } else {
+        Err(Error::Parameter(format!(
+            "the leg cost must be a finite number of metres, zero or more, got {m}"
+        )))
+    }
+}
+
 impl Default for RobotParams {
     fn default() -> Self {
         Self {
@@ -96,8 +110,7 @@ impl RobotParams {
             .all(|v| v.is_finite() && *v > 0.0)
             && self.clearance_m.is_finite()
             && self.clearance_m >= 0.0
-            && self.leg_cost_m.is_finite()
-            && self.leg_cost_m >= 0.0;
+            && check_leg_cost(self.leg_cost_m).is_ok();
         if let Sampling::StopSenseGo {
             spacing_m,
             settle_s,

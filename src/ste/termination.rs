@@ -88,9 +88,8 @@ impl Termination {
     /// The rule that goes with the estimator's settings: a tempered likelihood
     /// ([`SteParams::evidence_weight`] below 1), whose credible regions are calibrated, stops
     /// when its 90% region covers at most [`TARGET_AREA_M2`] and the readings hold a plume
-    /// that the estimate's reaches;
-    /// readings taken as independent (whose regions are over-confident) stop on the entropy
-    /// rule alone, as the paper's.
+    /// that the estimate's reaches; readings taken as independent (whose regions are
+    /// over-confident) stop on the entropy rule alone, as the paper's.
     pub fn for_params(params: &SteParams) -> Self {
         let tempered = params.tempered();
         Self {

@@ -41,9 +41,9 @@ pub struct PlumeNetConfig {
     /// config without this field reads as) means no.
     pub prior_skip: Option<bool>,
     /// Make the network an operator network ([`OperatorConfig`]): the U-Net sees the room alone,
-    /// once, and the source enters in a light per-source head. `None` (what a config
-    /// without this field reads as) means the U-Net sees room and source together, one pass
-    /// per source.
+    /// once, and the source enters in a light per-source head. `None` (what a config without
+    /// this field reads as) means the U-Net sees room and source together, one pass per
+    /// source.
     pub operator: Option<OperatorConfig>,
 }
 
@@ -72,8 +72,7 @@ pub struct OperatorConfig {
     #[config(default = 16)]
     pub hidden: usize,
     /// A coarse per-source network ([`CoarseConfig`]) in place of the bilinear form and its
-    /// head. `None` (what a config without this field reads as) means the
-    /// bilinear form.
+    /// head. `None` (what a config without this field reads as) means the bilinear form.
     pub coarse: Option<CoarseConfig>,
 }
 
