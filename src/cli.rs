@@ -140,6 +140,11 @@ struct TrainArgs {
     /// (default 8,16,32: three levels, at 0.5, 1 and 2 m cells).
     #[arg(long, value_delimiter = ',', requires = "coarse")]
     coarse_filters: Option<Vec<usize>>,
+    /// Pooling level of the coarse per-source network's cells: 1 for 0.25 m (each of the
+    /// STE's candidates its own network run), 2 for 0.5 m (the default: four candidates share
+    /// a run).
+    #[arg(long, requires = "coarse", value_parser = clap::value_parser!(u8).range(1..=4))]
+    coarse_level: Option<u8>,
     /// Start from this trained model's weights (its architecture and inputs too) instead of
     /// random ones, e.g. to continue a model on more or other data.
     #[arg(long)]
@@ -649,15 +654,16 @@ pub(crate) fn export_dir(prefix: &str) -> Result<tempfile::TempDir> {
 /// The operator network of `train --operator`, of the coarse form with `--coarse` (its room
 /// planes doubled: they are all the room gives each source; `filters` its per-source
 /// network's, if given).
-fn operator_config(coarse: bool, filters: Option<Vec<usize>>) -> OperatorConfig {
+fn operator_config(coarse: bool, filters: Option<Vec<usize>>, level: Option<u8>) -> OperatorConfig {
     let op = OperatorConfig::new();
     if !coarse {
         return op;
     }
     let per_source = CoarseConfig::new();
     let filters = filters.unwrap_or_else(|| per_source.filters.clone());
+    let level = level.map_or(per_source.level, usize::from);
     op.with_room_planes(16)
-        .with_coarse(Some(per_source.with_filters(filters)))
+        .with_coarse(Some(per_source.with_filters(filters).with_level(level)))
 }
 
 fn train(a: TrainArgs) -> Result<()> {
@@ -686,7 +692,7 @@ fn train(a: TrainArgs) -> Result<()> {
             })
             .with_operator(
                 a.operator
-                    .then(|| operator_config(a.coarse, a.coarse_filters.clone())),
+                    .then(|| operator_config(a.coarse, a.coarse_filters.clone(), a.coarse_level)),
             )
             .with_filters(
                 a.filters
@@ -716,7 +722,11 @@ fn train(a: TrainArgs) -> Result<()> {
                 .model
                 .with_in_channels(ROOM_CHANNELS)
                 .with_prior_skip(None)
-                .with_operator(Some(operator_config(a.coarse, a.coarse_filters.clone())));
+                .with_operator(Some(operator_config(
+                    a.coarse,
+                    a.coarse_filters.clone(),
+                    a.coarse_level,
+                )));
         }
         if let Some(filters) = &a.filters {
             config.model.filters = filters.clone();

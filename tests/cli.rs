@@ -1411,14 +1411,14 @@ fn the_dataset_and_model_commands_run_end_to_end() {
     // So does its coarse form (five levels: the room's U-Net decodes to level 2, where a
     // per-source network of two levels pools once); `--coarse` without `--operator` is
     // refused.
-    let (merged, coarse_dir) = (dir("merged"), dir("coarse"));
-    let coarse = |extra: &[&str]| {
+    let merged = dir("merged");
+    let coarse = |out: &str, extra: &[&str]| {
         let mut args = vec![
             "train",
             "--data",
             &merged,
             "--out",
-            &coarse_dir,
+            out,
             "--epochs",
             "1",
             "--filters",
@@ -1430,9 +1430,10 @@ fn the_dataset_and_model_commands_run_end_to_end() {
         args.extend_from_slice(extra);
         plumenet(&args)
     };
-    assert_clean_failure(&coarse(&[]), "--operator");
+    let coarse_dir = dir("coarse");
+    assert_clean_failure(&coarse(&coarse_dir, &[]), "--operator");
     assert!(
-        coarse(&["--operator", "--coarse-filters", "4,6"])
+        coarse(&coarse_dir, &["--operator", "--coarse-filters", "4,6"])
             .status
             .success()
     );
@@ -1441,6 +1442,37 @@ fn the_dataset_and_model_commands_run_end_to_end() {
     assert_eq!(per_source["level"], 2);
     assert_eq!(per_source["filters"], serde_json::json!([4, 6]));
     let bench = bench_json(tmp.path(), &room, &["--model", &coarse_dir]);
+    assert!(bench["model_bank_ms"].as_f64().unwrap() > 0.0, "{bench}");
+
+    // Its per-candidate variant: `--coarse-level 1` puts the per-source network on 0.25 m
+    // cells; a level the room's U-Net cannot give, or one without `--coarse`, is refused.
+    let fine_dir = dir("fine");
+    let fine = &["--operator", "--coarse-filters", "4,6", "--coarse-level"];
+    for bad in ["0", "9", "x"] {
+        let out = coarse(&fine_dir, &[fine.as_slice(), &[bad]].concat());
+        assert_clean_failure(&out, "--coarse-level");
+    }
+    assert_clean_failure(
+        &plumenet(&[
+            "train",
+            "--data",
+            &merged,
+            "--out",
+            &fine_dir,
+            "--operator",
+            "--coarse-level",
+            "1",
+        ]),
+        "--coarse",
+    );
+    assert!(
+        coarse(&fine_dir, &[fine.as_slice(), &["1"]].concat())
+            .status
+            .success()
+    );
+    let saved = read_json(tmp.path().join("fine").join("config.json"));
+    assert_eq!(saved["architecture"]["operator"]["coarse"]["level"], 1);
+    let bench = bench_json(tmp.path(), &room, &["--model", &fine_dir]);
     assert!(bench["model_bank_ms"].as_f64().unwrap() > 0.0, "{bench}");
 }
 
