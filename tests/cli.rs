@@ -1171,6 +1171,20 @@ fn bad_likelihood_settings_fail_before_the_bank() {
             "the fit reference must be a positive number, got -1",
         ),
         (
+            &[
+                "localize",
+                "--source",
+                "4.5,2.5",
+                "--evidence-saturation",
+                "-1",
+            ][..],
+            "the evidence saturation must be a positive number of readings, got -1",
+        ),
+        (
+            &["replay", "--log", log, "--evidence-saturation", "inf"][..],
+            "the evidence saturation must be a positive number of readings, got inf",
+        ),
+        (
             &["localize", "--source", "4.5,2.5", "--background-odds", "0"][..],
             "the background odds must be a positive number, got 0",
         ),

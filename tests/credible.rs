@@ -209,6 +209,7 @@ fn records_without_the_new_fields_stay_readable() {
     let mut v = serde_json::to_value(rank).unwrap();
     for key in [
         "evidence_weight",
+        "evidence_saturation",
         "fit_reference",
         "background_odds",
         "model_rank_factor",
@@ -217,6 +218,18 @@ fn records_without_the_new_fields_stay_readable() {
     }
     let old: SteParams = serde_json::from_value(v).unwrap();
     assert_eq!((old.evidence_weight, old.fit_reference), (1.0, None));
+    assert_eq!(old.evidence_saturation, None);
+    // Saturating evidence: each of n readings weighs W 2S / (S + n), W at n = S, and all of
+    // them together approach 2S readings of weight W.
+    let saturating = SteParams {
+        evidence_saturation: Some(3000.0),
+        ..rank
+    };
+    assert!((saturating.reading_weight(0) - 0.4).abs() < 1e-15);
+    assert!((saturating.reading_weight(3000) - 0.2).abs() < 1e-15);
+    let total = |n: usize| n as f64 * saturating.reading_weight(n);
+    assert!(total(1_000_000) < 2.0 * 3000.0 * 0.2 && total(1_000_000) > 0.99 * 1200.0);
+    assert_eq!(rank.reading_weight(5000), rank.evidence_weight);
     assert_eq!(old.rank.model_rank_factor, 1.0, "exact model ranks");
     assert_eq!(old.background_odds, None);
     assert_eq!(old.background_odds(), 1.0, "all three rises equally likely");

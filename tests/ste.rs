@@ -458,6 +458,11 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                 fit_reference: Some(1e-4),
                 ..rank
             },
+            // Evidence that saturates at 30 readings: each of the 50 weighs W 60 / 80.
+            SteParams {
+                evidence_saturation: Some(30.0),
+                ..rank
+            },
             rank.lag_in_concentration(),
             SteParams::for_feature(Feature::Value),
             SteParams {
@@ -497,6 +502,10 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
         };
         let m = features(&values);
         let n = samples.len() as f64;
+        let weight = match params.evidence_saturation {
+            Some(s) => params.evidence_weight * 2.0 * s / (s + n),
+            None => params.evidence_weight,
+        };
         let var = params.sigmas.model.powi(2) + params.sigmas.measurement.powi(2);
         let rows = gathered_rows(sampler, &samples, params.ppm_per_unit);
         // Rank marginalises a rising background (0, half and the whole of the rise); the
@@ -570,7 +579,7 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                             0.0
                         }
                     };
-                    -0.5 * params.evidence_weight * n / (n + 1.0)
+                    -0.5 * weight * n / (n + 1.0)
                         * e.iter()
                             .zip(&m)
                             .zip(&c)
@@ -587,7 +596,7 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
             .fold(f64::NEG_INFINITY, f64::max);
         // The best candidate's mean standardised squared residual; with a fit reference, a
         // fit worse than it weighs every reading down by their ratio.
-        let per_reading = |ll: f64| ll / (-0.5 * params.evidence_weight * n / (n + 1.0)) / n;
+        let per_reading = |ll: f64| ll / (-0.5 * weight * n / (n + 1.0)) / n;
         let scale = params
             .fit_reference
             .map_or(1.0, |r| r / per_reading(top).max(r));

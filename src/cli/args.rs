@@ -222,6 +222,16 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     evidence_weight: Option<f64>,
+    /// Let the evidence saturate at S readings: each of the n readings so far weighs the
+    /// evidence weight times 2S / (S + n) [default: none, every reading weighs the evidence
+    /// weight].
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        allow_negative_numbers = true
+    )]
+    evidence_saturation: Option<f64>,
     /// The prior odds of each background rise against none [default: 0.01 with a tempered
     /// likelihood, else 1].
     #[arg(
@@ -295,6 +305,9 @@ impl FeatureArgs {
         p.wander_deg = self.wind_wander;
         if let Some(w) = self.evidence_weight {
             p.evidence_weight = w;
+        }
+        if self.evidence_saturation.is_some() {
+            p.evidence_saturation = self.evidence_saturation;
         }
         // The model's factor resolved after the weight, whose floor goes with it.
         p.rank.model_rank_factor = self

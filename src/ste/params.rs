@@ -112,6 +112,15 @@ pub struct SteParams {
     /// weight is, so a changed weight leaves [`RankParams::model_rank_factor`] as it was.
     #[serde(default = "independent_readings")]
     pub evidence_weight: f64,
+    /// When set, `S` readings: the evidence saturates, as it does when the readings share a
+    /// plume model's error that no number of them averages out. Each of the `n` readings so
+    /// far then weighs `W 2S / (S + n)` ([`SteParams::reading_weight`], `W` the
+    /// [`SteParams::evidence_weight`]): `W` once `S` readings are in, more before, less in a
+    /// long run or a whole survey, and all of them together never more than `2S` readings of
+    /// weight `W`. The planner weighs its predicted readings by `W`. `None` (the default, and
+    /// what a record without this field reads as): every reading weighs `W`.
+    #[serde(default)]
+    pub evidence_saturation: Option<f64>,
     /// When set, the readings' noise level is taken from the data: with the best candidate's
     /// fit ([`crate::ste::posterior::Estimator::fit`]) above this reference, every reading's
     /// evidence is weighed down by their ratio, so that a plume model that explains the
@@ -239,6 +248,7 @@ impl SteParams {
                 Feature::Rank => RANK_EVIDENCE_WEIGHT,
                 _ => independent_readings(),
             },
+            evidence_saturation: None,
             fit_reference: None,
         };
         // The model's factor and fit check go with the weight (the floor of a tempered
@@ -246,6 +256,14 @@ impl SteParams {
         params.rank.model_rank_factor = params.rank_factor_for(rank_factor);
         params.fit_reference = params.fit_reference_for(rank_factor);
         params
+    }
+
+    /// The weight of each reading's evidence once `n` readings are in:
+    /// [`SteParams::evidence_weight`] `W`, or `W 2S / (S + n)` when the evidence saturates at
+    /// `S` readings ([`SteParams::evidence_saturation`]).
+    pub fn reading_weight(&self, n: usize) -> f64 {
+        let n = n as f64;
+        self.evidence_weight * self.evidence_saturation.map_or(1.0, |s| 2.0 * s / (s + n))
     }
 
     /// Whether the likelihood is tempered: each reading's evidence weighs less than one
@@ -334,6 +352,7 @@ impl SteParams {
             background_rise: 0.0,
             wander_deg: 0.0,
             evidence_weight: independent_readings(),
+            evidence_saturation: None,
             fit_reference: None,
             ..self.lag_in_concentration()
         }
@@ -438,6 +457,14 @@ impl SteParams {
             return Err(Error::Parameter(format!(
                 "the evidence weight must lie in (0, 1], got {}",
                 self.evidence_weight
+            )));
+        }
+        if let Some(s) = self
+            .evidence_saturation
+            .filter(|s| !(s.is_finite() && *s > 0.0))
+        {
+            return Err(Error::Parameter(format!(
+                "the evidence saturation must be a positive number of readings, got {s}"
             )));
         }
         if let Some(r) = self.fit_reference.filter(|r| !(r.is_finite() && *r > 0.0)) {

@@ -9,7 +9,7 @@
 //! ln p(D | theta_j) = -W/2 * sum_i n/(n+1) * (e_i - m_i)^2 / (sigma_E^2 + sigma_M^2 + w_i^2)
 //! ```
 //!
-//! over all `n` readings so far, each weighing `W` ([`SteParams::evidence_weight`]), recomputed from a uniform prior at every update (ranks change
+//! over all `n` readings so far, each weighing `W` ([`SteParams::reading_weight`]), recomputed from a uniform prior at every update (ranks change
 //! with every reading). The prior is zero inside the inflated obstacles and the boundary band.
 //! Before the features are taken, each estimated series passes through the sensor's response
 //! and recovery ([`SteParams::sensor_lag_s`], acting on the estimates raised to
@@ -393,7 +393,7 @@ impl Estimator {
         self.positions.extend(samples.iter().map(|s| [s.x, s.y]));
 
         let n = self.measured.len() as f64;
-        let factor = -0.5 * n / (n + 1.0) * self.params.evidence_weight;
+        let factor = -0.5 * n / (n + 1.0) * self.reading_weight();
         let variance = self.params.sigmas.variance();
         let (r, r_model) = (
             self.params.rank.rank_tolerance,
@@ -589,6 +589,12 @@ impl Estimator {
         if a != 1.0 {
             gathered.iter_mut().for_each(|c| *c = c.powf(1.0 / a));
         }
+    }
+
+    /// The weight of each reading's evidence with the readings so far
+    /// ([`SteParams::reading_weight`]).
+    pub fn reading_weight(&self) -> f64 {
+        self.params.reading_weight(self.readings.len())
     }
 
     /// Goodness of fit: the mean squared standardised residual per reading,
