@@ -394,15 +394,10 @@ impl SteParams {
                 self.detection_floor_ppm
             )));
         }
-        if let Some(w) = self
-            .rank
-            .clean_air_window_s
-            .filter(|w| !(w.is_finite() && *w > 0.0))
-        {
-            return Err(Error::Parameter(format!(
-                "the clean-air window must be a positive number of seconds, got {w}"
-            )));
-        }
+        check_positive(
+            self.rank.clean_air_window_s,
+            "the clean-air window must be a positive number of seconds",
+        )?;
         if !(self.sensor_lag_exponent.is_finite()
             && self.sensor_lag_exponent > 0.0
             && self.sensor_lag_exponent <= 1.0)
@@ -430,14 +425,10 @@ impl SteParams {
                 self.background_rise
             )));
         }
-        if let Some(o) = self
-            .background_odds
-            .filter(|o| !(o.is_finite() && *o > 0.0))
-        {
-            return Err(Error::Parameter(format!(
-                "the background odds must be a positive number, got {o}"
-            )));
-        }
+        check_positive(
+            self.background_odds,
+            "the background odds must be a positive number",
+        )?;
         if !(self.background_time_s.is_finite() && self.background_time_s > 0.0) {
             return Err(Error::Parameter(format!(
                 "the background time constant must be a positive number of seconds, got {}",
@@ -459,19 +450,14 @@ impl SteParams {
                 self.evidence_weight
             )));
         }
-        if let Some(s) = self
-            .evidence_saturation
-            .filter(|s| !(s.is_finite() && *s > 0.0))
-        {
-            return Err(Error::Parameter(format!(
-                "the evidence saturation must be a positive number of readings, got {s}"
-            )));
-        }
-        if let Some(r) = self.fit_reference.filter(|r| !(r.is_finite() && *r > 0.0)) {
-            return Err(Error::Parameter(format!(
-                "the fit reference must be a positive number, got {r}"
-            )));
-        }
+        check_positive(
+            self.evidence_saturation,
+            "the evidence saturation must be a positive number of readings",
+        )?;
+        check_positive(
+            self.fit_reference,
+            "the fit reference must be a positive number",
+        )?;
         if !(self.ppm_per_unit.is_finite() && self.ppm_per_unit > 0.0) {
             return Err(Error::Parameter(format!(
                 "ppm per unit must be positive, got {}",
@@ -479,6 +465,17 @@ impl SteParams {
             )));
         }
         Ok(())
+    }
+}
+
+/// Checks an optional setting that, when set, must be a finite positive number.
+///
+/// # Errors
+/// [`Error::Parameter`] with `what`, followed by the value, otherwise.
+fn check_positive(value: Option<f64>, what: &str) -> Result<()> {
+    match value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+        Some(v) => Err(Error::Parameter(format!("{what}, got {v}"))),
+        None => Ok(()),
     }
 }
 

@@ -393,7 +393,7 @@ impl Estimator {
         self.positions.extend(samples.iter().map(|s| [s.x, s.y]));
 
         let n = self.measured.len() as f64;
-        let factor = -0.5 * n / (n + 1.0) * self.reading_weight();
+        let factor = -0.5 * n / (n + 1.0) * self.params.reading_weight(self.measured.len());
         let variance = self.params.sigmas.variance();
         let (r, r_model) = (
             self.params.rank.rank_tolerance,
@@ -589,12 +589,6 @@ impl Estimator {
         if a != 1.0 {
             gathered.iter_mut().for_each(|c| *c = c.powf(1.0 / a));
         }
-    }
-
-    /// The weight of each reading's evidence with the readings so far
-    /// ([`SteParams::reading_weight`]).
-    pub fn reading_weight(&self) -> f64 {
-        self.params.reading_weight(self.readings.len())
     }
 
     /// Goodness of fit: the mean squared standardised residual per reading,
