@@ -465,9 +465,13 @@ fn localize_writes_the_run_and_its_pictures() {
     // the tempered likelihood knows its ranks within 1.5, independent readings exactly;
     // PlumeNet's are known within its own factor, unless the flag says otherwise.
     assert_eq!(run["config"]["ste"]["model_rank_factor"], 1.5);
-    // The tempered likelihood checks the exact solver's fit against 0.02 (none for PlumeNet,
-    // whose own error widens its posterior, nor with independent readings).
-    assert_eq!(run["config"]["ste"]["fit_reference"], 0.02);
+    // The tempered likelihood checks every model's misfit against 50 (none with independent
+    // readings), and the fit per reading only when asked.
+    assert_eq!(run["config"]["ste"]["misfit_reference"], 50.0);
+    assert_eq!(
+        run["config"]["ste"]["fit_reference"],
+        serde_json::Value::Null
+    );
     // Rank marginalises a rising background by default (rises 0, 0.25 and 0.5 fully mixed).
     assert_eq!(run["config"]["ste"]["background_rise"], 0.5);
     assert_eq!(run["backgrounds"].as_array().unwrap().len(), 3);
@@ -477,10 +481,11 @@ fn localize_writes_the_run_and_its_pictures() {
     assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], response);
     assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 0.2);
     let surrogate_json = tmp.path().join("plumenet.json");
-    // (flags, model rank factor, background rise, lag exponent, detection floor, fit reference)
+    // (flags, model rank factor, background rise, lag exponent, detection floor, fit reference,
+    // misfit reference)
     let none = serde_json::Value::Null;
-    for (flags, factor, rise, exponent, floor, fit) in [
-        (&[][..], 3.0, 0.5, response, 0.2, none.clone()),
+    for (flags, factor, rise, exponent, floor, fit, misfit) in [
+        (&[][..], 3.0, 0.5, response, 0.2, none.clone(), 50.0.into()),
         (
             &["--model-rank-factor", "1.5", "--background-rise", "0"][..],
             1.5,
@@ -488,6 +493,7 @@ fn localize_writes_the_run_and_its_pictures() {
             response,
             0.2,
             none.clone(),
+            50.0.into(),
         ),
         (
             &["--feature", "value"][..],
@@ -495,6 +501,7 @@ fn localize_writes_the_run_and_its_pictures() {
             0.0,
             1.0,
             1.0,
+            none.clone(),
             none.clone(),
         ),
         (
@@ -504,6 +511,7 @@ fn localize_writes_the_run_and_its_pictures() {
             response,
             0.2,
             none.clone(),
+            none.clone(),
         ),
         (
             &["--solver", "--model-rank-factor", "1"][..],
@@ -511,7 +519,8 @@ fn localize_writes_the_run_and_its_pictures() {
             0.5,
             response,
             0.2,
-            0.02.into(),
+            none.clone(),
+            50.0.into(),
         ),
         (
             &["--solver", "--no-fit-check"][..],
@@ -519,6 +528,7 @@ fn localize_writes_the_run_and_its_pictures() {
             0.5,
             response,
             0.2,
+            none.clone(),
             none.clone(),
         ),
         (
@@ -528,6 +538,7 @@ fn localize_writes_the_run_and_its_pictures() {
             response,
             0.2,
             0.03.into(),
+            50.0.into(),
         ),
         (
             &["--evidence-weight", "1"][..],
@@ -536,8 +547,26 @@ fn localize_writes_the_run_and_its_pictures() {
             response,
             0.2,
             none.clone(),
+            none.clone(),
         ),
-        (&["--paper-rank"][..], 1.0, 0.0, 1.0, 1.0, none.clone()),
+        (
+            &["--solver", "--misfit-reference", "80"][..],
+            1.5,
+            0.5,
+            response,
+            0.2,
+            none.clone(),
+            80.0.into(),
+        ),
+        (
+            &["--paper-rank"][..],
+            1.0,
+            0.0,
+            1.0,
+            1.0,
+            none.clone(),
+            none.clone(),
+        ),
         (
             &["--lag-exponent", "1", "--detection-floor", "1"][..],
             3.0,
@@ -545,6 +574,7 @@ fn localize_writes_the_run_and_its_pictures() {
             1.0,
             1.0,
             none.clone(),
+            50.0.into(),
         ),
         (
             &["--paper-rank", "--lag-exponent", "0.5"][..],
@@ -552,6 +582,7 @@ fn localize_writes_the_run_and_its_pictures() {
             0.0,
             0.5,
             1.0,
+            none.clone(),
             none.clone(),
         ),
     ] {
@@ -584,6 +615,10 @@ fn localize_writes_the_run_and_its_pictures() {
             "{flags:?}"
         );
         assert_eq!(run["config"]["ste"]["fit_reference"], fit, "{flags:?}");
+        assert_eq!(
+            run["config"]["ste"]["misfit_reference"], misfit,
+            "{flags:?}"
+        );
     }
 
     let iterations = run["iterations"].as_u64().unwrap() as usize;
@@ -1169,6 +1204,14 @@ fn bad_likelihood_settings_fail_before_the_bank() {
         (
             &["serve", "--fit-reference", "-1"][..],
             "the fit reference must be a positive number, got -1",
+        ),
+        (
+            &["localize", "--source", "4.5,2.5", "--misfit-reference", "0"][..],
+            "the misfit reference must be a positive number, got 0",
+        ),
+        (
+            &["replay", "--log", log, "--misfit-reference", "NaN"][..],
+            "the misfit reference must be a positive number, got NaN",
         ),
         (
             &[

@@ -211,6 +211,7 @@ fn records_without_the_new_fields_stay_readable() {
         "evidence_weight",
         "evidence_saturation",
         "fit_reference",
+        "misfit_reference",
         "background_odds",
         "model_rank_factor",
     ] {
@@ -219,6 +220,7 @@ fn records_without_the_new_fields_stay_readable() {
     let old: SteParams = serde_json::from_value(v).unwrap();
     assert_eq!((old.evidence_weight, old.fit_reference), (1.0, None));
     assert_eq!(old.evidence_saturation, None);
+    assert_eq!(old.misfit_reference, None);
     // Saturating evidence: each of n readings weighs W 2S / (S + n), W at n = S, and all of
     // them together approach 2S readings of weight W.
     let saturating = SteParams {
@@ -265,25 +267,20 @@ fn records_without_the_new_fields_stay_readable() {
             .model_rank_factor,
         3.0
     );
-    // The fit check goes with the tempered likelihood and an exact model only.
-    assert_eq!(rank.fit_reference, Some(0.02));
-    for (weight, own, expected) in [
-        (0.2, 1.0, Some(0.02)),
-        (0.2, 3.0, None),
-        (1.0, 1.0, None),
-        (1.0, 3.0, None),
-    ] {
+    // The misfit check goes with the tempered likelihood, for every plume model; the check
+    // per reading is off unless set.
+    for own in [1.0, 3.0] {
+        let p = SteParams::for_model(Feature::Rank, own);
+        assert_eq!((p.misfit_reference, p.fit_reference), (Some(50.0), None));
+    }
+    for (weight, expected) in [(0.2, Some(50.0)), (1.0, None)] {
         let p = SteParams {
             evidence_weight: weight,
             ..rank
         };
-        assert_eq!(
-            p.fit_reference_for(own),
-            expected,
-            "weight {weight}, own {own}"
-        );
+        assert_eq!(p.misfit_reference_for(), expected, "weight {weight}");
     }
-    assert_eq!(SteParams::for_model(Feature::Rank, 3.0).fit_reference, None);
+    assert_eq!(rank.papers_rank().misfit_reference, None);
     let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
     assert_eq!(t["target_area_m2"], 1.0);
     assert_eq!(t["region_radius_m"], 1.5);

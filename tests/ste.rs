@@ -458,6 +458,11 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
                 fit_reference: Some(1e-4),
                 ..rank
             },
+            // Weighed down by a misfit worse than a small reference alone.
+            SteParams {
+                misfit_reference: Some(0.05),
+                ..rank
+            },
             // Evidence that saturates at 30 readings: each of the 50 weighs W 60 / 80.
             SteParams {
                 evidence_saturation: Some(30.0),
@@ -595,11 +600,21 @@ fn posterior_matches_the_papers_formula_by_brute_force() {
             .flat_map(|ll| ll.iter().zip(&sup).filter(|p| *p.1).map(|p| *p.0))
             .fold(f64::NEG_INFINITY, f64::max);
         // The best candidate's mean standardised squared residual; with a fit reference, a
-        // fit worse than it weighs every reading down by their ratio.
+        // fit worse than it weighs every reading down by their ratio, and with a misfit
+        // reference, so does a sum of those residuals over the readings worse than it.
         let per_reading = |ll: f64| ll / (-0.5 * weight * n / (n + 1.0)) / n;
         let scale = params
             .fit_reference
-            .map_or(1.0, |r| r / per_reading(top).max(r));
+            .map_or(1.0, |r| r / per_reading(top).max(r))
+            * params
+                .misfit_reference
+                .map_or(1.0, |r| r / (n * per_reading(top)).max(r));
+        if params.misfit_reference == Some(0.05) {
+            assert!(
+                scale < 1.0,
+                "the small misfit reference weighs the readings down"
+            );
+        }
         // Each rise weighs its prior odds against none.
         let o = params.background_odds();
         let prior: Vec<f64> = match levels.len() {

@@ -241,9 +241,8 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     background_odds: Option<f64>,
-    /// Take the readings' noise level from the data: a best fit worse than this reference
-    /// weighs every reading down by their ratio [default: 0.02 for the solver with a
-    /// tempered likelihood, else none].
+    /// Take the readings' noise level from the data: a best fit per reading worse than this
+    /// reference weighs every reading down by their ratio [default: none].
     #[arg(
         long,
         hide_short_help = true,
@@ -251,20 +250,30 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     fit_reference: Option<f64>,
-    /// Weigh the readings by the evidence weight alone, without the fit check's
-    /// (`--fit-reference`) default.
+    /// Take the readings' noise level from the data: a best misfit over all readings (the
+    /// sum of their squared standardised residuals) worse than this reference weighs every
+    /// reading down by their ratio [default: 50 with a tempered likelihood, else none].
     #[arg(
         long,
         hide_short_help = true,
         help_heading = "Likelihood tuning",
-        conflicts_with = "fit_reference"
+        allow_negative_numbers = true
+    )]
+    misfit_reference: Option<f64>,
+    /// Weigh the readings by the evidence weight alone, without the misfit check's
+    /// (`--misfit-reference`) default.
+    #[arg(
+        long,
+        hide_short_help = true,
+        help_heading = "Likelihood tuning",
+        conflicts_with_all = ["fit_reference", "misfit_reference"]
     )]
     no_fit_check: bool,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
     /// sensor's response with its lower floor (the other features' lag and floor instead);
     /// exactly invariant under every increasing transform of the readings.
-    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "background_odds", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander", "fit_reference"])]
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning", conflicts_with_all = ["rank_tolerance", "model_rank_factor", "background_rise", "background_odds", "clean_air_model_ties", "clean_air_rank_floor", "wind_wander", "fit_reference", "misfit_reference"])]
     paper_rank: bool,
 }
 
@@ -313,12 +322,11 @@ impl FeatureArgs {
         p.rank.model_rank_factor = self
             .model_rank_factor
             .unwrap_or_else(|| p.rank_factor_for(rank_factor));
-        // The fit check's default goes with the weight and the model, as the factor's does.
-        p.fit_reference = match self.no_fit_check {
+        // The misfit check's default goes with the weight, as the factor's does.
+        p.fit_reference = self.fit_reference;
+        p.misfit_reference = match self.no_fit_check {
             true => None,
-            false => self
-                .fit_reference
-                .or_else(|| p.fit_reference_for(rank_factor)),
+            false => self.misfit_reference.or_else(|| p.misfit_reference_for()),
         };
         if self.paper_rank {
             p = p.papers_rank();

@@ -472,17 +472,21 @@ impl Estimator {
             })
             .collect();
         // The readings' noise level taken from the best fit: a model that explains them less
-        // well than the reference weighs each reading less.
-        let scale = match self.params.fit_reference {
-            None => 1.0,
-            Some(reference) => {
-                let best = slot_lik
+        // well than a reference (per reading, or over all of them) weighs each reading less.
+        let (fit_ref, misfit_ref) = (self.params.fit_reference, self.params.misfit_reference);
+        let scale = match fit_ref.is_some() || misfit_ref.is_some() {
+            false => 1.0,
+            true => {
+                let misfit = slot_lik
                     .iter()
                     .enumerate()
                     .filter(|(k, _)| self.log_prior[k % positions].is_finite())
-                    .map(|(_, l)| l.0 / factor / n)
+                    .map(|(_, l)| l.0 / factor)
                     .fold(f64::INFINITY, f64::min);
-                reference / best.max(reference)
+                let weigh = |reference: Option<f64>, value: f64| {
+                    reference.map_or(1.0, |r| r / value.max(r))
+                };
+                weigh(fit_ref, misfit / n) * weigh(misfit_ref, misfit)
             }
         };
         let slot_lik: Vec<(f64, Vec<f64>)> = match scale {
