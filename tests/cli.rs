@@ -550,6 +550,15 @@ fn localize_writes_the_run_and_its_pictures() {
             none.clone(),
         ),
         (
+            &["--solver", "--no-fit-check", "--fit-reference", "0.02"][..],
+            1.5,
+            0.5,
+            response,
+            0.2,
+            0.02.into(),
+            none.clone(),
+        ),
+        (
             &["--solver", "--misfit-reference", "80"][..],
             1.5,
             0.5,

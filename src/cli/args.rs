@@ -260,13 +260,13 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     misfit_reference: Option<f64>,
-    /// Weigh the readings by the evidence weight alone, without the misfit check's
-    /// (`--misfit-reference`) default.
+    /// Without the misfit check's (`--misfit-reference`) default: the readings weigh the
+    /// evidence weight alone, or with the fit check per reading when `--fit-reference` is set.
     #[arg(
         long,
         hide_short_help = true,
         help_heading = "Likelihood tuning",
-        conflicts_with_all = ["fit_reference", "misfit_reference"]
+        conflicts_with = "misfit_reference"
     )]
     no_fit_check: bool,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
