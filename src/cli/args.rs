@@ -322,8 +322,8 @@ impl FeatureArgs {
         p.rank.model_rank_factor = self
             .model_rank_factor
             .unwrap_or_else(|| p.rank_factor_for(rank_factor));
-        // The misfit check's default goes with the weight, as the factor's does.
         p.fit_reference = self.fit_reference;
+        // The misfit check's default goes with the weight, as the factor's does.
         p.misfit_reference = match self.no_fit_check {
             true => None,
             false => self.misfit_reference.or_else(|| p.misfit_reference_for()),
