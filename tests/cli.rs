@@ -466,12 +466,9 @@ fn localize_writes_the_run_and_its_pictures() {
     // PlumeNet's are known within its own factor, unless the flag says otherwise.
     assert_eq!(run["config"]["ste"]["model_rank_factor"], 1.5);
     // The tempered likelihood checks every model's misfit against 50 (none with independent
-    // readings), and the fit per reading only when asked.
+    // readings), and the exact solver's fit per reading against 0.02 too.
     assert_eq!(run["config"]["ste"]["misfit_reference"], 50.0);
-    assert_eq!(
-        run["config"]["ste"]["fit_reference"],
-        serde_json::Value::Null
-    );
+    assert_eq!(run["config"]["ste"]["fit_reference"], 0.02);
     // Rank marginalises a rising background by default (rises 0, 0.25 and 0.5 fully mixed).
     assert_eq!(run["config"]["ste"]["background_rise"], 0.5);
     assert_eq!(run["backgrounds"].as_array().unwrap().len(), 3);
@@ -516,6 +513,15 @@ fn localize_writes_the_run_and_its_pictures() {
         (
             &["--solver", "--model-rank-factor", "1"][..],
             1.0,
+            0.5,
+            response,
+            0.2,
+            0.02.into(),
+            50.0.into(),
+        ),
+        (
+            &["--solver", "--no-fit-check", "--misfit-reference", "50"][..],
+            1.5,
             0.5,
             response,
             0.2,
@@ -564,7 +570,7 @@ fn localize_writes_the_run_and_its_pictures() {
             0.5,
             response,
             0.2,
-            none.clone(),
+            0.02.into(),
             80.0.into(),
         ),
         (

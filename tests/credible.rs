@@ -268,19 +268,22 @@ fn records_without_the_new_fields_stay_readable() {
         3.0
     );
     // The misfit check goes with the tempered likelihood, for every plume model; the check
-    // per reading is off unless set.
-    for own in [1.0, 3.0] {
+    // per reading only for an exact one.
+    for (own, fit) in [(1.0, Some(0.02)), (3.0, None)] {
         let p = SteParams::for_model(Feature::Rank, own);
-        assert_eq!((p.misfit_reference, p.fit_reference), (Some(50.0), None));
+        assert_eq!((p.misfit_reference, p.fit_reference), (Some(50.0), fit));
     }
-    for (weight, expected) in [(0.2, Some(50.0)), (1.0, None)] {
+    for (weight, misfit, fit) in [(0.2, Some(50.0), Some(0.02)), (1.0, None, None)] {
         let p = SteParams {
             evidence_weight: weight,
             ..rank
         };
-        assert_eq!(p.misfit_reference_for(), expected, "weight {weight}");
+        assert_eq!(p.misfit_reference_for(), misfit, "weight {weight}");
+        assert_eq!(p.fit_reference_for(1.0), fit, "weight {weight}");
+        assert_eq!(p.fit_reference_for(3.0), None, "weight {weight}");
     }
-    assert_eq!(rank.papers_rank().misfit_reference, None);
+    let paper = rank.papers_rank();
+    assert_eq!((paper.misfit_reference, paper.fit_reference), (None, None));
     let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
     assert_eq!(t["target_area_m2"], 1.0);
     assert_eq!(t["region_radius_m"], 1.5);

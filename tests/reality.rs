@@ -446,9 +446,13 @@ fn the_wind_speed_posterior_finds_realitys_speed() {
     let mut config = EpisodeConfig::new(Feature::Rank, SensorPreset::SensorII);
     config.ste.evidence_weight = 1.0;
     config.ste.rank.model_rank_factor = config.ste.rank_factor_for(1.0);
+    config.ste.fit_reference = config.ste.fit_reference_for(1.0);
     config.ste.misfit_reference = config.ste.misfit_reference_for();
     assert_eq!(config.ste.rank.model_rank_factor, 1.0);
-    assert_eq!(config.ste.misfit_reference, None);
+    assert_eq!(
+        (config.ste.fit_reference, config.ste.misfit_reference),
+        (None, None)
+    );
     assert_eq!(config.ste.background_rise, 0.5);
     let lag_in_c = config.ste.lag_in_concentration();
     assert_eq!(

@@ -242,7 +242,8 @@ pub struct FeatureArgs {
     )]
     background_odds: Option<f64>,
     /// Take the readings' noise level from the data: a best fit per reading worse than this
-    /// reference weighs every reading down by their ratio [default: none].
+    /// reference weighs every reading down by their ratio [default: 0.02 with the solver and a
+    /// tempered likelihood, else none].
     #[arg(
         long,
         hide_short_help = true,
@@ -260,14 +261,10 @@ pub struct FeatureArgs {
         allow_negative_numbers = true
     )]
     misfit_reference: Option<f64>,
-    /// Without the misfit check's (`--misfit-reference`) default: the readings weigh the
-    /// evidence weight alone, or with the fit check per reading when `--fit-reference` is set.
-    #[arg(
-        long,
-        hide_short_help = true,
-        help_heading = "Likelihood tuning",
-        conflicts_with = "misfit_reference"
-    )]
+    /// Without the fit checks' defaults (`--misfit-reference`, and with the solver
+    /// `--fit-reference`): the readings weigh the evidence weight alone, or with the checks
+    /// whose references are set.
+    #[arg(long, hide_short_help = true, help_heading = "Likelihood tuning")]
     no_fit_check: bool,
     /// Rank only: the paper's rank likelihood, without our clean-air ties (of the readings and
     /// the model), rank tolerance, expected model ranks, background nuisance, and lag in the
@@ -322,10 +319,15 @@ impl FeatureArgs {
         p.rank.model_rank_factor = self
             .model_rank_factor
             .unwrap_or_else(|| p.rank_factor_for(rank_factor));
-        p.fit_reference = self.fit_reference;
-        // The misfit check's default goes with the weight, as the factor's does.
+        // The fit checks' defaults go with the weight, as the factor's does.
+        p.fit_reference = match self.no_fit_check {
+            true => self.fit_reference,
+            false => self
+                .fit_reference
+                .or_else(|| p.fit_reference_for(rank_factor)),
+        };
         p.misfit_reference = match self.no_fit_check {
-            true => None,
+            true => self.misfit_reference,
             false => self.misfit_reference.or_else(|| p.misfit_reference_for()),
         };
         if self.paper_rank {
