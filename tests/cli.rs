@@ -443,6 +443,7 @@ fn localize_writes_the_run_and_its_pictures() {
             "{at}: {cells} cells hold {mass}"
         );
         assert_eq!(region["covers_source"], level < at);
+        assert!((region["mass"].as_f64().unwrap() - mass).abs() < 1e-9);
         assert!((region["area_m2"].as_f64().unwrap() - cells as f64 * 0.0625).abs() < 1e-9);
     }
     let area90 = u["regions"][1]["area_m2"].as_f64().unwrap();
@@ -727,6 +728,8 @@ fn replay_and_experiment_write_their_reports() {
         assert_eq!(row.covers_50, Some(row.source_level < 0.5));
         assert_eq!(row.covers_90, Some(row.source_level < 0.9));
         assert!(row.area_50_m2 > 0.0 && row.area_50_m2 <= row.area_90_m2);
+        assert!(row.mass_50 >= 0.5 - 1e-9 && row.mass_90 >= 0.9 - 1e-9);
+        assert!(row.mass_50 <= row.mass_90 && row.mass_90 <= 1.0);
         assert!(row.expected_distance_m >= 0.0 && row.log_p_source <= 0.0);
     }
     assert!(dir.join("boxplots.png").exists());
@@ -1794,16 +1797,33 @@ fn the_calibration_benchmark_runs_in_its_quick_form() {
             );
         }
         assert!(r["cover_50"].as_f64() <= r["cover_90"].as_f64(), "{r}");
+        // What a calibrated posterior's regions would hold: their mean mass, at least the
+        // level.
+        let [m50, m90] = ["mass_50_mean", "mass_90_mean"].map(|k| r[k].as_f64().unwrap());
+        assert!(
+            0.5 <= m50 && m50 <= m90 && (0.9..=1.0).contains(&m90),
+            "{r}"
+        );
         // The median distance driven is the median of the suite's runs of that model.
         let suite = r["suite"].as_str().unwrap().replace(' ', "-");
         let runs_csv = std::fs::read_to_string(out.join(suite).join("runs.csv")).unwrap();
-        let mut distances: Vec<f64> = csv::Reader::from_reader(runs_csv.as_bytes())
-            .deserialize::<plumenet::study::experiment::RunRow>()
-            .map(|row| row.unwrap())
-            .filter(|row| row.model == r["model"].as_str().unwrap())
-            .map(|row| row.distance_m)
-            .collect();
+        let model_runs: Vec<plumenet::study::experiment::RunRow> =
+            csv::Reader::from_reader(runs_csv.as_bytes())
+                .deserialize::<plumenet::study::experiment::RunRow>()
+                .map(|row| row.unwrap())
+                .filter(|row| row.model == r["model"].as_str().unwrap())
+                .collect();
+        let mut distances: Vec<f64> = model_runs.iter().map(|row| row.distance_m).collect();
         assert_eq!(distances.len() as u64, runs, "{r}");
+        // The PIT columns are the runs' mean PIT, from their level and log posterior.
+        for (key, u) in [("pit_50_mean", 0.5), ("pit_90_mean", 0.9)] {
+            let mean = model_runs
+                .iter()
+                .map(|row| plumenet::ste::credible::pit(row.source_level, row.log_p_source, u))
+                .sum::<f64>()
+                / runs as f64;
+            assert!((r[key].as_f64().unwrap() - mean).abs() < 1e-9, "{r}: {key}");
+        }
         distances.sort_by(f64::total_cmp);
         let n = distances.len();
         let median = 0.5 * (distances[(n - 1) / 2] + distances[n / 2]);

@@ -70,6 +70,8 @@ fn run(layout: &str, reality: &str, run: usize, error_m: f64, iterations: usize)
         fit: 0.01,
         area_50_m2: 0.5,
         area_90_m2: 1.0,
+        mass_50: 0.6,
+        mass_90: 0.92,
         covers_50: Some(error_m < 0.5),
         covers_90: Some(error_m < 1.0),
         source_level: 0.5,

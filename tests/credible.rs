@@ -3,7 +3,7 @@
 //! level whose region holds it, and a calibrated posterior gives uniform levels.
 
 use plumenet::ste::Uncertainty;
-use plumenet::ste::credible::{cell_area_m2, credible_set, outline};
+use plumenet::ste::credible::{cell_area_m2, credible_set, outline, pit};
 use proptest::prelude::*;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -19,6 +19,17 @@ fn grid(nx: usize, ny: usize, spacing: f64) -> Vec<[f64; 2]> {
 fn normalised(w: &[f64]) -> Vec<f64> {
     let total: f64 = w.iter().sum();
     w.iter().map(|v| v / total).collect()
+}
+
+/// A candidate drawn from the posterior `p`: the source of a run whose posterior is calibrated.
+fn draw(candidates: &[[f64; 2]], p: &[f64], rng: &mut ChaCha8Rng) -> [f64; 2] {
+    let u: f64 = rng.random();
+    let mut acc = 0.0;
+    let k = p.iter().position(|&q| {
+        acc += q;
+        acc > u
+    });
+    candidates[k.unwrap_or(p.len() - 1)]
 }
 
 #[test]
@@ -123,13 +134,7 @@ fn levels_of_a_calibrated_posterior_are_uniform() {
             .collect();
         let p = normalised(&w);
         largest = largest.max(p.iter().copied().fold(0.0, f64::max));
-        let u: f64 = rng.random();
-        let mut acc = 0.0;
-        let k = p.iter().position(|&q| {
-            acc += q;
-            acc > u
-        });
-        let source = candidates[k.unwrap_or(p.len() - 1)];
+        let source = draw(&candidates, &p, &mut rng);
         let un = Uncertainty::of(&candidates, &p, candidates[0], Some(source));
         levels.push(un.source.unwrap().level);
         hits50 += usize::from(un.region(0.5).unwrap().covers_source.unwrap());
@@ -156,6 +161,81 @@ fn levels_of_a_calibrated_posterior_are_uniform() {
         ks < 1.63 / (runs as f64).sqrt() + largest,
         "KS distance {ks}"
     );
+}
+
+/// A sharp posterior's regions overshoot their level by their last cell's share, so a
+/// calibrated posterior's 50% regions hold the source in more than half of the runs: in the
+/// share their mean mass says. The nonrandomised PIT of the source's cell has no such bias:
+/// its mean at every level is the level.
+#[test]
+fn sharp_calibrated_posteriors_cover_by_their_regions_mass() {
+    let candidates = grid(10, 8, 0.25);
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let runs = 4000;
+    let levels = [0.1, 0.3, 0.5, 0.7, 0.9];
+    let (mut hits, mut masses, mut pits) = ([0usize; 2], [0.0f64; 2], [0.0f64; 5]);
+    for _ in 0..runs {
+        // A peak on a random cell whose neighbours fall off by a random factor: the most
+        // probable cell holds a third to nearly all of the mass.
+        let peak = candidates[rng.random_range(0..candidates.len())];
+        let width = rng.random_range(0.08..0.3);
+        let w: Vec<f64> = candidates
+            .iter()
+            .map(|c| {
+                (-((c[0] - peak[0]).powi(2) + (c[1] - peak[1]).powi(2)) / (2.0 * width * width))
+                    .exp()
+            })
+            .collect();
+        let p = normalised(&w);
+        let source = draw(&candidates, &p, &mut rng);
+        let un = Uncertainty::of(&candidates, &p, peak, Some(source));
+        for (j, at) in [0.5, 0.9].into_iter().enumerate() {
+            let region = un.region(at).unwrap();
+            hits[j] += usize::from(region.covers_source.unwrap());
+            masses[j] += region.mass.unwrap();
+        }
+        let score = un.source.unwrap();
+        for (j, &at) in levels.iter().enumerate() {
+            pits[j] += score.pit(at);
+            assert_eq!(score.pit(at), pit(score.level, score.log_posterior, at));
+        }
+    }
+    let n = runs as f64;
+    // Binomial standard error at 4000 runs is under 0.008: allow 4 of them.
+    let tolerance = 4.0 * (0.25 / n).sqrt();
+    let mean_mass = masses.map(|m| m / n);
+    assert!(
+        mean_mass[0] > 0.6,
+        "the 50% regions overshoot: {mean_mass:?}"
+    );
+    for j in 0..2 {
+        let share = hits[j] as f64 / n;
+        assert!(
+            (share - mean_mass[j]).abs() < tolerance,
+            "{share} against {mean_mass:?}"
+        );
+    }
+    assert!(hits[0] as f64 / n - 0.5 > 3.0 * tolerance, "{}", hits[0]);
+    for (j, &at) in levels.iter().enumerate() {
+        assert!(
+            (pits[j] / n - at).abs() < tolerance,
+            "PIT at {at}: {}",
+            pits[j] / n
+        );
+    }
+}
+
+/// The nonrandomised PIT spreads the source's cell over the levels it spans: zero below its
+/// level, one above the level plus its mass, linear between; a cell the prior excluded is a
+/// step at its level.
+#[test]
+fn the_pit_spreads_the_source_cell_over_its_levels() {
+    let lp = 0.4f64.ln();
+    assert_eq!(pit(0.3, lp, 0.2), 0.0);
+    assert!((pit(0.3, lp, 0.5) - 0.5).abs() < 1e-12);
+    assert_eq!(pit(0.3, lp, 0.75), 1.0);
+    assert_eq!(pit(0.3, f64::NEG_INFINITY, 0.3), 0.0);
+    assert_eq!(pit(0.3, f64::NEG_INFINITY, 0.31), 1.0);
 }
 
 proptest! {
@@ -306,5 +386,14 @@ fn records_without_the_new_fields_stay_readable() {
     assert_eq!(rows.len(), 1);
     assert_eq!((rows[0].covers_50, rows[0].covers_90), (None, None));
     assert!(rows[0].area_90_m2.is_nan() && rows[0].source_level.is_nan());
+    assert!(rows[0].mass_50.is_nan() && rows[0].mass_90.is_nan());
     assert_eq!(rows[0].error_m, 0.2);
+    // A region from before its mass was recorded.
+    let candidates = grid(4, 2, 0.25);
+    let u = Uncertainty::of(&candidates, &normalised(&[1.0; 8]), [0.0, 0.0], None);
+    let mut region = serde_json::to_value(u.region(0.5).unwrap()).unwrap();
+    assert_eq!(region["mass"], 0.5);
+    region.as_object_mut().unwrap().remove("mass").unwrap();
+    let old: plumenet::ste::CredibleRegion = serde_json::from_value(region).unwrap();
+    assert_eq!((old.cells.len(), old.mass), (4, None));
 }

@@ -6,7 +6,11 @@
 //! `L` (ties in the order of the candidates). The source's level is the mass of the cells
 //! ranked before the source's own cell, so the region at `L` covers the source exactly when
 //! that level is below `L`: over many runs of a calibrated posterior the levels are uniform on
-//! `[0, 1)`.
+//! `[0, 1)` when no cell holds much of the mass. A region holds at least its level, more by
+//! its last cell's share ([`CredibleRegion::mass`]); over many runs of a calibrated posterior,
+//! that mass, not the level, is the share of runs whose region holds the source, and the
+//! source's level spread over its cell's mass (the nonrandomised probability integral
+//! transform, [`SourceScore::pit`]) is uniform however sharp the posterior.
 
 use serde::{Deserialize, Serialize};
 
@@ -22,6 +26,11 @@ pub struct CredibleRegion {
     pub cells: Vec<[f64; 2]>,
     /// The region's area (m^2): its cells times the candidates' cell area.
     pub area_m2: f64,
+    /// The posterior mass the region holds: at least its level, more by its last cell's
+    /// share. A calibrated posterior's regions hold the source in this share of runs, on
+    /// average. `None` in a record without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<f64>,
     /// Whether the region holds the true source's cell, when the source is known.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covers_source: Option<bool>,
@@ -34,11 +43,33 @@ pub struct SourceScore {
     /// when the source lies on the border of several.
     pub cell: [f64; 2],
     /// The smallest credible level whose region holds that cell: the mass of the cells ranked
-    /// before it (uniform on `[0, 1)` over runs of a calibrated posterior).
+    /// before it (over runs of a calibrated posterior uniform on `[0, 1)` when no cell holds
+    /// much of the mass; [`SourceScore::pit`] is uniform however sharp the posterior).
     pub level: f64,
     /// The natural logarithm of the posterior of that cell (negative infinity, written as
     /// `null`, for a cell the prior excluded).
     pub log_posterior: f64,
+}
+
+impl SourceScore {
+    /// The nonrandomised probability integral transform at `u` in `[0, 1]` (Czado, Gneiting
+    /// and Held 2009): the share of the source's cell that lies within the credible level
+    /// `u`, its mass spread over the levels from [`SourceScore::level`] to the level plus
+    /// the cell's posterior. Averaged over the runs of a calibrated posterior it is `u`,
+    /// however much of the mass one cell holds.
+    pub fn pit(&self, u: f64) -> f64 {
+        pit(self.level, self.log_posterior, u)
+    }
+}
+
+/// [`SourceScore::pit`] of a source whose cell has the level `level` and the log posterior
+/// `log_posterior`: what a run record keeps of its score.
+pub fn pit(level: f64, log_posterior: f64, u: f64) -> f64 {
+    let mass = log_posterior.exp();
+    match mass > 0.0 {
+        true => ((u - level) / mass).clamp(0.0, 1.0),
+        false => f64::from(u > level),
+    }
 }
 
 /// The uncertainty of a posterior over candidate cells, as reports state it.
@@ -93,6 +124,7 @@ impl Uncertainty {
                 CredibleRegion {
                     level,
                     area_m2: cells.len() as f64 * cell_area,
+                    mass: Some(cells.iter().map(|&k| posterior[k]).sum::<f64>().min(1.0)),
                     covers_source: score.map(|s| s.level < level),
                     cells: cells.iter().map(|&k| candidates[k]).collect(),
                 }

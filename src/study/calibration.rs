@@ -3,8 +3,9 @@
 //! rooms of every size class with the wind from each wall, the mismatch suite, and lawnmower
 //! surveys); each run records its credible regions and the smallest level whose region holds
 //! the source ([`crate::ste::SourceScore::level`]). Per suite and plume model the benchmark reports the
-//! coverage of the 50% and 90% regions beside their areas (sharpness: a flat posterior covers
-//! but says nothing), the errors, runs declared converged far off, and a reliability diagram.
+//! coverage of the 50% and 90% regions beside what a calibrated posterior's would hold (their
+//! mean mass) and their areas (sharpness: a flat posterior covers but says nothing), the
+//! errors, runs declared converged far off, and a reliability diagram.
 
 use std::path::Path;
 
@@ -23,6 +24,7 @@ use crate::sim::episode::StartRule;
 use crate::sim::reality::Mismatch;
 use crate::sim::seed::derive_seed;
 use crate::stats::{mean_std, median, quantile};
+use crate::ste::credible::pit;
 use crate::study::experiment::{PathsRule, RunRow, coverage};
 use crate::surrogate::data::{SIZE_CLASSES, size_class};
 
@@ -171,6 +173,18 @@ pub struct CalibrationRow {
     pub cover_50: f64,
     /// Share of runs whose 90% credible region holds the source.
     pub cover_90: f64,
+    /// Mean posterior mass of the 50% regions ([`crate::ste::CredibleRegion::mass`]): the
+    /// share of runs whose 50% region a calibrated posterior's would hold the source in, at
+    /// least 50%, more where one cell holds much of the mass.
+    pub mass_50_mean: f64,
+    /// Mean posterior mass of the 90% regions: what [`CalibrationRow::cover_90`] is for a
+    /// calibrated posterior.
+    pub mass_90_mean: f64,
+    /// Mean nonrandomised PIT of the source's cell at 0.5 ([`crate::ste::credible::pit`]):
+    /// 0.5 for a calibrated posterior, however sharp, free of the regions' whole cells.
+    pub pit_50_mean: f64,
+    /// Mean nonrandomised PIT of the source's cell at 0.9: 0.9 for a calibrated posterior.
+    pub pit_90_mean: f64,
     /// Median area of the 50% region (m^2).
     pub area_50_median_m2: f64,
     /// Median area of the 90% region (m^2).
@@ -210,6 +224,10 @@ impl CalibrationRow {
             runs: runs.len(),
             cover_50: coverage(runs, |r| r.covers_50),
             cover_90: coverage(runs, |r| r.covers_90),
+            mass_50_mean: mean_std(&column(|r| r.mass_50)).0,
+            mass_90_mean: mean_std(&column(|r| r.mass_90)).0,
+            pit_50_mean: mean_pit(runs.iter().copied(), 0.5),
+            pit_90_mean: mean_pit(runs.iter().copied(), 0.9),
             area_50_median_m2: median(&column(|r| r.area_50_m2)),
             area_90_median_m2: median(&column(|r| r.area_90_m2)),
             log_p_source_median: median(&column(|r| r.log_p_source)),
@@ -259,8 +277,9 @@ pub fn calibration_table(rows: &[CalibrationRow]) -> String {
         "suite",
         "model",
         "runs",
-        "50% covers",
-        "90% covers",
+        "50% covers (calibrated)",
+        "90% covers (calibrated)",
+        "PIT at 50% / 90%",
         "90% area median (m²)",
         "error mean / median / p90 / max (m)",
         "converged > 1.5 m off",
@@ -276,8 +295,17 @@ pub fn calibration_table(rows: &[CalibrationRow]) -> String {
                 r.suite.clone(),
                 r.model.clone(),
                 r.runs.to_string(),
-                format!("{:.0}%", 100.0 * r.cover_50),
-                format!("{:.0}%", 100.0 * r.cover_90),
+                format!(
+                    "{:.0}% ({:.0}%)",
+                    100.0 * r.cover_50,
+                    100.0 * r.mass_50_mean
+                ),
+                format!(
+                    "{:.0}% ({:.0}%)",
+                    100.0 * r.cover_90,
+                    100.0 * r.mass_90_mean
+                ),
+                format!("{:.2} / {:.2}", r.pit_50_mean, r.pit_90_mean),
                 format!("{:.2}", r.area_90_median_m2),
                 format!(
                     "{:.2} / {:.2} / {:.2} / {:.2}",
@@ -293,48 +321,61 @@ pub fn calibration_table(rows: &[CalibrationRow]) -> String {
     )
 }
 
+/// Whether a run scored the source: a finite level and a log posterior (negative infinity
+/// for a cell the prior excluded).
+fn scored(r: &RunRow) -> bool {
+    r.source_level.is_finite() && !r.log_p_source.is_nan()
+}
+
+/// The mean nonrandomised PIT at `u` ([`pit`]) of the runs that scored the source (NaN for
+/// none).
+fn mean_pit<'a>(runs: impl IntoIterator<Item = &'a RunRow>, u: f64) -> f64 {
+    let values: Vec<f64> = runs
+        .into_iter()
+        .filter(|r| scored(r))
+        .map(|r| pit(r.source_level, r.log_p_source, u))
+        .collect();
+    mean_std(&values).0
+}
+
 /// The nominal levels of the reliability diagram.
 const NOMINAL: [f64; 10] = [0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
 
 /// Bins of the levels' histogram.
 const BINS: usize = 10;
 
-/// The reliability diagram of each plume model over every suite's runs: actual against
-/// nominal coverage (a calibrated posterior lies on the diagonal), and the histogram of the
-/// levels at which the regions first hold the source (flat at 1 when calibrated).
+/// The reliability diagram of each plume model over every suite's runs, by the nonrandomised
+/// probability integral transform of the source's cell ([`crate::ste::credible::pit`]): its
+/// mean against the credible level (a calibrated posterior lies on the diagonal, however sharp
+/// it is), and its histogram, where the source's cell lies among the posterior's levels (flat
+/// at 1 when calibrated).
 pub fn reliability_panels(suites: &[(String, Vec<RunRow>)]) -> [CurvePanel; 2] {
     let models = models_in_order(suites.iter().flat_map(|(_, rows)| rows));
-    let levels = |model: &str| -> Vec<f64> {
+    let scores = |model: &str| -> Vec<&RunRow> {
         let rows = suites.iter().flat_map(|(_, rows)| rows);
-        rows.filter(|r| r.model == model && r.source_level.is_finite())
-            .map(|r| r.source_level)
-            .collect()
+        rows.filter(|r| r.model == model && scored(r)).collect()
     };
     let coverage = models
         .iter()
         .map(|m| {
-            let l = levels(m);
-            let n = l.len().max(1) as f64;
+            let s = scores(m);
             let points = NOMINAL
                 .iter()
-                .map(|&a| (a, l.iter().filter(|&&v| v < a).count() as f64 / n))
+                .map(|&u| (u, mean_pit(s.iter().copied(), u)))
                 .collect();
-            (format!("{m} ({} runs)", l.len()), points)
+            (format!("{m} ({} runs)", s.len()), points)
         })
         .collect();
     let histogram: Vec<(String, Vec<(f64, f64)>)> = models
         .iter()
         .map(|m| {
-            let l = levels(m);
-            let n = l.len().max(1) as f64;
-            let mut counts = [0usize; BINS];
-            for v in &l {
-                counts[((v * BINS as f64) as usize).min(BINS - 1)] += 1;
-            }
-            let points = counts
-                .iter()
-                .enumerate()
-                .map(|(k, &c)| ((k as f64 + 0.5) / BINS as f64, c as f64 * BINS as f64 / n))
+            let s = scores(m);
+            let points = (0..BINS)
+                .map(|k| {
+                    let [lo, hi] = [k, k + 1].map(|e| e as f64 / BINS as f64);
+                    let share = mean_pit(s.iter().copied(), hi) - mean_pit(s.iter().copied(), lo);
+                    ((lo + hi) / 2.0, share * BINS as f64)
+                })
                 .collect();
             (m.clone(), points)
         })
@@ -345,15 +386,15 @@ pub fn reliability_panels(suites: &[(String, Vec<RunRow>)]) -> [CurvePanel; 2] {
         .fold(2.0, f64::max);
     [
         CurvePanel {
-            title: "coverage of the credible regions".into(),
+            title: "the source within the credible level (PIT)".into(),
             x_desc: "credible level".into(),
-            y_desc: "runs whose region holds the source".into(),
+            y_desc: "mean share of the source's cell within it".into(),
             y_max: 1.0,
             ideal: ("calibrated".into(), vec![(0.0, 0.0), (1.0, 1.0)]),
             series: coverage,
         },
         CurvePanel {
-            title: "smallest level whose region holds the source".into(),
+            title: "where the source's cell lies among the levels (PIT histogram)".into(),
             x_desc: "level".into(),
             y_desc: "density of runs".into(),
             y_max: top * 1.1,

@@ -95,6 +95,13 @@ pub struct RunRow {
     /// Area of the final 90% credible region (m^2; NaN in a record without it).
     #[serde(default = "not_recorded")]
     pub area_90_m2: f64,
+    /// Posterior mass of the final 50% credible region ([`crate::ste::CredibleRegion::mass`];
+    /// NaN in a record without it).
+    #[serde(default = "not_recorded")]
+    pub mass_50: f64,
+    /// Posterior mass of the final 90% credible region (NaN in a record without it).
+    #[serde(default = "not_recorded")]
+    pub mass_90: f64,
     /// Whether the final 50% credible region holds the source.
     #[serde(default)]
     pub covers_50: Option<bool>,
@@ -377,6 +384,8 @@ pub fn run_study(
                 fit: out.fit,
                 area_50_m2: region(0.5).map_or(f64::NAN, |r| r.area_m2),
                 area_90_m2: region(0.9).map_or(f64::NAN, |r| r.area_m2),
+                mass_50: region(0.5).and_then(|r| r.mass).unwrap_or(f64::NAN),
+                mass_90: region(0.9).and_then(|r| r.mass).unwrap_or(f64::NAN),
                 covers_50: region(0.5).and_then(|r| r.covers_source),
                 covers_90: region(0.9).and_then(|r| r.covers_source),
                 source_level: score.map_or(f64::NAN, |s| s.level),
