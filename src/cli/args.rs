@@ -319,17 +319,13 @@ impl FeatureArgs {
         p.rank.model_rank_factor = self
             .model_rank_factor
             .unwrap_or_else(|| p.rank_factor_for(rank_factor));
-        // The fit checks' defaults go with the weight, as the factor's does.
-        p.fit_reference = match self.no_fit_check {
-            true => self.fit_reference,
-            false => self
-                .fit_reference
-                .or_else(|| p.fit_reference_for(rank_factor)),
-        };
-        p.misfit_reference = match self.no_fit_check {
-            true => self.misfit_reference,
-            false => self.misfit_reference.or_else(|| p.misfit_reference_for()),
-        };
+        // The fit checks' defaults go with the weight, as the factor's does; a reference set
+        // applies with or without them.
+        let default = |d: Option<f64>| d.filter(|_| !self.no_fit_check);
+        p.fit_reference = self
+            .fit_reference
+            .or(default(p.fit_reference_for(rank_factor)));
+        p.misfit_reference = self.misfit_reference.or(default(p.misfit_reference_for()));
         if self.paper_rank {
             p = p.papers_rank();
         }

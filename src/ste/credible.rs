@@ -120,11 +120,11 @@ impl Uncertainty {
         let regions = REPORTED_LEVELS
             .iter()
             .map(|&level| {
-                let cells = region(&order, posterior, level);
+                let (cells, mass) = region(&order, posterior, level);
                 CredibleRegion {
                     level,
                     area_m2: cells.len() as f64 * cell_area,
-                    mass: Some(cells.iter().map(|&k| posterior[k]).sum::<f64>().min(1.0)),
+                    mass: Some(mass.min(1.0)),
                     covers_source: score.map(|s| s.level < level),
                     cells: cells.iter().map(|&k| candidates[k]).collect(),
                 }
@@ -155,8 +155,8 @@ fn ranked(posterior: &[f64]) -> Vec<usize> {
     order
 }
 
-/// The first cells of `order` whose mass reaches `level`.
-fn region(order: &[usize], posterior: &[f64], level: f64) -> Vec<usize> {
+/// The first cells of `order` whose mass reaches `level`, with the mass they hold.
+fn region(order: &[usize], posterior: &[f64], level: f64) -> (Vec<usize>, f64) {
     let mut total = 0.0;
     let mut out = Vec::new();
     for &k in order {
@@ -166,13 +166,13 @@ fn region(order: &[usize], posterior: &[f64], level: f64) -> Vec<usize> {
         total += posterior[k];
         out.push(k);
     }
-    out
+    (out, total)
 }
 
 /// Indices of the smallest set of candidates holding at least `level` of `posterior`, most
 /// probable first.
 pub fn credible_set(posterior: &[f64], level: f64) -> Vec<usize> {
-    region(&ranked(posterior), posterior, level)
+    region(&ranked(posterior), posterior, level).0
 }
 
 /// The candidates (m) of the credible region at `level` of `posterior`, most probable first.

@@ -351,35 +351,27 @@ const BINS: usize = 10;
 /// at 1 when calibrated).
 pub fn reliability_panels(suites: &[(String, Vec<RunRow>)]) -> [CurvePanel; 2] {
     let models = models_in_order(suites.iter().flat_map(|(_, rows)| rows));
-    let scores = |model: &str| -> Vec<&RunRow> {
+    let mut coverage = Vec::new();
+    let mut histogram: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for m in &models {
         let rows = suites.iter().flat_map(|(_, rows)| rows);
-        rows.filter(|r| r.model == model && scored(r)).collect()
-    };
-    let coverage = models
-        .iter()
-        .map(|m| {
-            let s = scores(m);
-            let points = NOMINAL
-                .iter()
-                .map(|&u| (u, mean_pit(s.iter().copied(), u)))
-                .collect();
-            (format!("{m} ({} runs)", s.len()), points)
-        })
-        .collect();
-    let histogram: Vec<(String, Vec<(f64, f64)>)> = models
-        .iter()
-        .map(|m| {
-            let s = scores(m);
-            let points = (0..BINS)
-                .map(|k| {
-                    let [lo, hi] = [k, k + 1].map(|e| e as f64 / BINS as f64);
-                    let share = mean_pit(s.iter().copied(), hi) - mean_pit(s.iter().copied(), lo);
-                    ((lo + hi) / 2.0, share * BINS as f64)
-                })
-                .collect();
-            (m.clone(), points)
-        })
-        .collect();
+        let runs: Vec<&RunRow> = rows.filter(|r| &r.model == m && scored(r)).collect();
+        let points = NOMINAL
+            .iter()
+            .map(|&u| (u, mean_pit(runs.iter().copied(), u)))
+            .collect();
+        coverage.push((format!("{m} ({} runs)", runs.len()), points));
+        // The mean PIT at the bins' edges, once each: a bin's density is its rise.
+        let edges: Vec<f64> = (0..=BINS)
+            .map(|e| mean_pit(runs.iter().copied(), e as f64 / BINS as f64))
+            .collect();
+        let points = edges
+            .windows(2)
+            .enumerate()
+            .map(|(k, w)| ((k as f64 + 0.5) / BINS as f64, (w[1] - w[0]) * BINS as f64))
+            .collect();
+        histogram.push((m.clone(), points));
+    }
     let top = histogram
         .iter()
         .flat_map(|(_, p)| p.iter().map(|q| q.1))
