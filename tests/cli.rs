@@ -1258,6 +1258,20 @@ fn bad_likelihood_settings_fail_before_the_bank() {
             "the leg cost must be a finite number of metres, zero or more, got NaN",
         ),
         (
+            &[
+                "localize",
+                "--source",
+                "4.5,2.5",
+                "--revisit-radius",
+                "-0.5",
+            ][..],
+            "the revisit radius must be a finite number of metres, zero or more, got -0.5",
+        ),
+        (
+            &["serve", "--revisit-radius", "inf"][..],
+            "the revisit radius must be a finite number of metres, zero or more, got inf",
+        ),
+        (
             &["calibration", "--quick", "--target-area", "0"][..],
             "the target area must be a positive number of square metres",
         ),

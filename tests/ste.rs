@@ -874,6 +874,31 @@ fn a_robot_without_a_leg_cost_reads_as_the_default_and_a_bad_cost_is_refused() {
     with(0.0).check().unwrap();
 }
 
+/// Robot settings written without a revisit radius read as none, every predicted point
+/// counted in full (how they were planned); a negative, infinite or NaN radius is refused.
+#[test]
+fn a_robot_without_a_revisit_radius_counts_every_point_and_a_bad_radius_is_refused() {
+    let with = |revisit_radius_m: f64| RobotParams {
+        revisit_radius_m,
+        ..RobotParams::default()
+    };
+    let mut written = serde_json::to_value(with(0.5)).unwrap();
+    assert!(
+        written
+            .as_object_mut()
+            .unwrap()
+            .remove("revisit_radius_m")
+            .is_some()
+    );
+    let read: RobotParams = serde_json::from_value(written).unwrap();
+    assert_eq!(read.revisit_radius_m, 0.0);
+    for bad in [-0.5, f64::INFINITY, f64::NAN] {
+        assert_err(with(bad).check(), "bad robot settings");
+    }
+    with(0.0).check().unwrap();
+    with(0.5).check().unwrap();
+}
+
 // ---------------------------------------------------------------- episodes
 
 fn stop_sense_go_config(feature: Feature) -> EpisodeConfig {

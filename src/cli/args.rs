@@ -430,16 +430,23 @@ pub struct RunArgs {
     stable_iterations: u16,
     /// What one more leg costs the robot (stopping, updating, turning), in metres of driving:
     /// a larger cost makes fewer, longer legs.
-    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = plumenet::ste::robot::LEG_COST_M, value_parser = parse_leg_cost, allow_negative_numbers = true)]
+    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = plumenet::ste::robot::LEG_COST_M, value_parser = |s: &str| parse_metres(s, plumenet::ste::robot::check_leg_cost), allow_negative_numbers = true)]
     leg_cost: f64,
+    /// The radius (m) within which the planner counts the readings already taken around each
+    /// point of a leg: a point where n passes' readings lie weighs 1 / (1 + n) of a fresh one.
+    /// 0 counts every point in full.
+    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = 0.0, value_parser = |s: &str| parse_metres(s, plumenet::ste::robot::check_revisit_radius), allow_negative_numbers = true)]
+    revisit_radius: f64,
 }
 
-/// A leg cost, checked as the library checks it ([`plumenet::ste::robot::check_leg_cost`]).
-fn parse_leg_cost(s: &str) -> std::result::Result<f64, String> {
+/// A length in metres, checked as the library checks it (`check`: a leg cost or a revisit
+/// radius, [`plumenet::ste::robot`]).
+fn parse_metres(
+    s: &str,
+    check: fn(f64) -> plumenet::error::Result<()>,
+) -> std::result::Result<f64, String> {
     let m: f64 = s.parse().map_err(|e| format!("{e}"))?;
-    plumenet::ste::robot::check_leg_cost(m)
-        .map(|()| m)
-        .map_err(|e| e.to_string())
+    check(m).map(|()| m).map_err(|e| e.to_string())
 }
 
 impl RunArgs {
@@ -468,6 +475,7 @@ impl RunArgs {
         }
         c.termination.stable_iterations = usize::from(self.stable_iterations);
         c.robot.leg_cost_m = self.leg_cost;
+        c.robot.revisit_radius_m = self.revisit_radius;
         // An entropy threshold asks for the entropy rule; a target area for the area rule.
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;

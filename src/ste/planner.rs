@@ -13,7 +13,9 @@
 //!    [`SteParams::evidence_weight`](crate::ste::params::SteParams::evidence_weight) `W` as
 //!    the likelihood weighs each reading's. Counted in full under a tempered likelihood, a few
 //!    metres near the estimate would seem to refute every other hypothesis that the posterior
-//!    in fact keeps, and the robot would circle the estimate while far mass stays.
+//!    in fact keeps, and the robot would circle the estimate while far mass stays. With a
+//!    revisit radius ([`RobotParams::revisit_radius_m`]) a point weighs `1 / (1 + n)` of that,
+//!    where `n` passes' readings already lie within the radius.
 //! 3. Gain: `H(w) - sum_k w_k H(w | y = y_k)`, where `w | y_k` is the hypothesis posterior had
 //!    the source been hypothesis `k` (noise-free predictions), i.e. the mutual information
 //!    between the source and the path's observations, approximated on the hypotheses.
@@ -43,7 +45,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::ste::posterior::{Estimator, entropy, normalise};
-use crate::ste::robot::{Occupancy, path_length, point_at};
+use crate::ste::robot::{Occupancy, RobotParams, path_length, point_at};
 use crate::ste::sampler::FieldSampler;
 
 /// Which planner chooses the goals.
@@ -107,7 +109,45 @@ pub struct Plan {
 pub struct Planner {
     kind: PlannerKind,
     leg_cost_m: f64,
+    revisit: Revisit,
     rng: ChaCha8Rng,
+}
+
+/// How much less a predicted point tells where the robot has sensed before
+/// ([`RobotParams::revisit_radius_m`]).
+#[derive(Debug, Clone, Copy)]
+struct Revisit {
+    /// The radius within which past readings count (m); 0 counts none.
+    radius_m: f64,
+    /// The readings one pass leaves within the radius.
+    pass_readings: f64,
+}
+
+impl Revisit {
+    fn new(robot: &RobotParams) -> Self {
+        Self {
+            radius_m: robot.revisit_radius_m,
+            pass_readings: 2.0 * robot.revisit_radius_m * robot.readings_per_m(),
+        }
+    }
+
+    /// Each point's share of a fresh point's evidence: `1 / (1 + n / n1)`, with `n` the
+    /// readings taken within the radius and `n1` one pass's; 1 everywhere without a radius.
+    fn shares(&self, points: &[[f64; 2]], past: &[[f64; 2]]) -> Vec<f64> {
+        points
+            .iter()
+            .map(|q| {
+                if self.radius_m <= 0.0 {
+                    return 1.0;
+                }
+                let near = past
+                    .iter()
+                    .filter(|p| (p[0] - q[0]).hypot(p[1] - q[1]) < self.radius_m)
+                    .count();
+                1.0 / (1.0 + near as f64 / self.pass_readings)
+            })
+            .collect()
+    }
 }
 
 /// Weighted source hypotheses drawn from the posterior.
@@ -117,13 +157,14 @@ struct Hypotheses {
 }
 
 impl Planner {
-    /// A planner that counts `leg_cost_m` metres of driving for each leg
-    /// ([`RobotParams::leg_cost_m`](crate::ste::robot::RobotParams::leg_cost_m)), whose random
-    /// choices come from `seed`.
-    pub fn new(kind: PlannerKind, leg_cost_m: f64, seed: u64) -> Self {
+    /// A planner for `robot`, which counts its [`RobotParams::leg_cost_m`] metres of driving
+    /// for each leg and discounts points within its [`RobotParams::revisit_radius_m`] of
+    /// readings already taken, and whose random choices come from `seed`.
+    pub fn new(kind: PlannerKind, robot: &RobotParams, seed: u64) -> Self {
         Self {
             kind,
-            leg_cost_m,
+            leg_cost_m: robot.leg_cost_m,
+            revisit: Revisit::new(robot),
             rng: ChaCha8Rng::seed_from_u64(seed),
         }
     }
@@ -142,15 +183,13 @@ impl Planner {
         match self.kind {
             PlannerKind::BeliefClustering => {
                 let goals = self.cluster_goals(est, occupancy);
-                best_by_path_gain(
-                    &hyp,
-                    est.sampler(),
-                    occupancy,
-                    position,
-                    &goals,
-                    est.params().evidence_weight,
-                    self.leg_cost_m,
-                )
+                let leg = Leg {
+                    weight: est.params().evidence_weight,
+                    cost_m: self.leg_cost_m,
+                    revisit: self.revisit,
+                    past: est.positions(),
+                };
+                best_by_path_gain(&hyp, est.sampler(), occupancy, position, &goals, &leg)
             }
             PlannerKind::Baseline => baseline(&hyp, est, occupancy, position),
         }
@@ -271,18 +310,20 @@ fn nearest(centres: &[[f64; 2]], p: [f64; 2]) -> usize {
 }
 
 /// Expected information gain of observing the hypotheses' log concentrations at `points`,
-/// each observation's log-likelihood weighed by `weight` (the evidence weight).
+/// each observation's log-likelihood weighed by `weight` (the evidence weight) times its
+/// share of a fresh point's evidence (`shares`, one per point).
 fn expected_gain(
     hyp: &Hypotheses,
     sampler: &FieldSampler,
     points: &[[f64; 2]],
+    shares: &[f64],
     weight: f64,
 ) -> f64 {
     let m = hyp.index.len();
     let mut row = vec![0.0f32; sampler.len()];
     let mut dist2 = vec![0.0f64; m * m];
     let mut y = vec![0.0f64; m];
-    for q in points {
+    for (q, share) in points.iter().zip(shares) {
         sampler.gather(q[0], q[1], 1.0, &mut row);
         for (ya, &a) in y.iter_mut().zip(&hyp.index) {
             *ya = (f64::from(row[a]) / OBS_REF).ln_1p();
@@ -290,7 +331,7 @@ fn expected_gain(
         for a in 0..m {
             for b in 0..m {
                 let d = y[a] - y[b];
-                dist2[a * m + b] += d * d;
+                dist2[a * m + b] += share * d * d;
             }
         }
     }
@@ -320,24 +361,34 @@ fn far_enough(position: [f64; 2], goal: [f64; 2]) -> bool {
     (goal[0] - position[0]).hypot(goal[1] - position[1]) >= MIN_GOAL_M
 }
 
+/// How a leg is scored: the evidence weight of its predicted points, what one more leg
+/// costs, and the discount of points near the readings already taken (`past`).
+struct Leg<'a> {
+    weight: f64,
+    cost_m: f64,
+    revisit: Revisit,
+    past: &'a [[f64; 2]],
+}
+
 /// The goal whose path gains the most expected information per metre, each leg counting
-/// `leg_cost_m` metres more than its length.
+/// `leg.cost_m` metres more than its length.
 fn best_by_path_gain(
     hyp: &Hypotheses,
     sampler: &FieldSampler,
     occupancy: &Occupancy,
     position: [f64; 2],
     goals: &[[f64; 2]],
-    weight: f64,
-    leg_cost_m: f64,
+    leg: &Leg,
 ) -> Option<Plan> {
     goals
         .iter()
         .filter(|&&g| far_enough(position, g))
         .filter_map(|&goal| {
             let path = occupancy.plan(position, goal)?;
-            let gain = expected_gain(hyp, sampler, &path_points(&path), weight);
-            let score = gain / (path_length(&path) + leg_cost_m);
+            let points = path_points(&path);
+            let shares = leg.revisit.shares(&points, leg.past);
+            let gain = expected_gain(hyp, sampler, &points, &shares, leg.weight);
+            let score = gain / (path_length(&path) + leg.cost_m);
             Some(Plan { goal, path, score })
         })
         .fold(None, |best: Option<Plan>, p| match best {
@@ -378,7 +429,15 @@ fn baseline(
         .collect();
     let gains: Vec<f64> = goals
         .iter()
-        .map(|&g| expected_gain(hyp, est.sampler(), &[g], est.params().evidence_weight))
+        .map(|&g| {
+            expected_gain(
+                hyp,
+                est.sampler(),
+                &[g],
+                &[1.0],
+                est.params().evidence_weight,
+            )
+        })
         .collect();
     let dists: Vec<f64> = goals.iter().map(|g| (g[0] - mx).hypot(g[1] - my)).collect();
     let top_gain = gains.iter().copied().fold(0.0, f64::max).max(1e-12);
@@ -423,6 +482,55 @@ mod tests {
         (layout, sampler, hyp)
     }
 
+    /// Every point a fresh point's share of the evidence.
+    fn fresh(points: &[[f64; 2]]) -> Vec<f64> {
+        vec![1.0; points.len()]
+    }
+
+    /// A point where the robot has sensed before tells less: where one pass's readings lie
+    /// within the revisit radius it weighs half a fresh point, where three passes' a quarter,
+    /// and readings beyond the radius, or no radius, leave it whole. Its share is what a
+    /// fresh point at that fraction of the weight gains, and the path's gain falls with it.
+    #[test]
+    fn ground_already_sensed_tells_less() {
+        let (_, sampler, hyp) = three_sources(2.0, [0.5, 1.0, 1.5], [0.5, 0.25, 0.25]);
+        let robot = RobotParams {
+            revisit_radius_m: 0.5,
+            ..RobotParams::default()
+        };
+        let revisit = Revisit::new(&robot);
+        // One pass along x at full speed leaves a reading every 0.027 m.
+        let step = robot.max_speed_mps * robot.tick_s;
+        let pass = |y: f64, times: usize| -> Vec<[f64; 2]> {
+            (0..times)
+                .flat_map(|_| (0..=150).map(move |k| [k as f64 * step, y]))
+                .collect()
+        };
+        let point = [[2.0, 0.5]];
+        let share = |past: &[[f64; 2]]| revisit.shares(&point, past)[0];
+        // The readings within 0.5 m of the point: 37 of one pass, one pass's worth.
+        assert!(
+            (share(&pass(0.5, 1)) - 0.5).abs() < 0.02,
+            "{}",
+            share(&pass(0.5, 1))
+        );
+        assert!((share(&pass(0.5, 3)) - 0.25).abs() < 0.01);
+        assert_eq!(share(&pass(1.5, 3)), 1.0);
+        assert_eq!(share(&[]), 1.0);
+        let none = Revisit::new(&RobotParams::default());
+        assert_eq!(none.shares(&point, &pass(0.5, 3)), vec![1.0]);
+        let weight = 0.2;
+        let s = share(&pass(0.5, 1));
+        let discounted = expected_gain(&hyp, &sampler, &point, &[s], weight);
+        let at_fraction = expected_gain(&hyp, &sampler, &point, &[1.0], weight * s);
+        assert!((discounted - at_fraction).abs() <= 1e-12 * at_fraction);
+        let whole = expected_gain(&hyp, &sampler, &point, &[1.0], weight);
+        assert!(
+            discounted > 0.0 && discounted < whole * (1.0 - 1e-6),
+            "{discounted} {whole}"
+        );
+    }
+
     /// Each observation's evidence weighs `weight`: a path sensed once at a weight gains what
     /// the same path sensed twice at half of it gains (the log-likelihoods add), and without
     /// the weight the twice-sensed path would gain more. Three sources side by side in a small
@@ -434,8 +542,8 @@ mod tests {
         let path = [[2.0, 0.5], [3.0, 0.5]];
         let twice: Vec<[f64; 2]> = path.iter().flat_map(|&p| [p, p]).collect();
         for weight in [1.0, 0.2, 0.01] {
-            let once = expected_gain(&hyp, &sampler, &path, weight);
-            let halves = expected_gain(&hyp, &sampler, &twice, weight / 2.0);
+            let once = expected_gain(&hyp, &sampler, &path, &fresh(&path), weight);
+            let halves = expected_gain(&hyp, &sampler, &twice, &fresh(&twice), weight / 2.0);
             assert!(
                 once > 1e-4 && once < 0.9 * entropy(&hyp.weight),
                 "{weight}: {once}"
@@ -444,10 +552,12 @@ mod tests {
                 (once - halves).abs() < 1e-9 * once,
                 "{weight}: {once} {halves}"
             );
-            assert!(expected_gain(&hyp, &sampler, &twice, weight) > once * (1.0 + 1e-6));
+            assert!(
+                expected_gain(&hyp, &sampler, &twice, &fresh(&twice), weight) > once * (1.0 + 1e-6)
+            );
         }
         // A weaker weight gains less from the same path here, and nothing from none.
-        let gain = |w: f64| expected_gain(&hyp, &sampler, &path, w);
+        let gain = |w: f64| expected_gain(&hyp, &sampler, &path, &fresh(&path), w);
         assert!(gain(0.01) < gain(0.2) && gain(0.2) < gain(1.0));
         assert_eq!(gain(0.0), 0.0);
     }
@@ -467,7 +577,8 @@ mod tests {
             .iter()
             .map(|&g| {
                 let path = occupancy.plan(position, g).unwrap();
-                let gain = expected_gain(&hyp, &sampler, &path_points(&path), weight);
+                let points = path_points(&path);
+                let gain = expected_gain(&hyp, &sampler, &points, &fresh(&points), weight);
                 (gain, path_length(&path))
             })
             .collect();
@@ -482,9 +593,14 @@ mod tests {
         // The fixture tells the two rules apart.
         assert_ne!(best(0.0), best(1000.0), "{legs:?}");
         for cost in [0.0, 2.0, 1000.0] {
+            let leg = Leg {
+                weight,
+                cost_m: cost,
+                revisit: Revisit::new(&RobotParams::default()),
+                past: &[],
+            };
             let plan =
-                best_by_path_gain(&hyp, &sampler, &occupancy, position, &goals, weight, cost)
-                    .unwrap();
+                best_by_path_gain(&hyp, &sampler, &occupancy, position, &goals, &leg).unwrap();
             let k = best(cost);
             assert_eq!(plan.goal, goals[k], "cost {cost}: {legs:?}");
             let expected = legs[k].0 / (legs[k].1 + cost);

@@ -62,6 +62,13 @@ pub struct RobotParams {
     /// [`LEG_COST_M`].
     #[serde(default = "default_leg_cost_m")]
     pub leg_cost_m: f64,
+    /// The radius (m) within which the planner counts the readings already taken around each
+    /// point it predicts along a leg: a point where one pass's readings lie weighs half a
+    /// fresh one's evidence, where `n` passes' `1 / (1 + n)`, since a reading taken where the
+    /// robot has sensed before shares those readings' errors and tells less. 0 (what a config
+    /// without the field reads as) counts every predicted point in full.
+    #[serde(default)]
+    pub revisit_radius_m: f64,
 }
 
 /// The default cost of one more leg (m of driving).
@@ -76,13 +83,27 @@ fn default_leg_cost_m() -> f64 {
 /// # Errors
 /// [`Error::Parameter`] otherwise.
 pub fn check_leg_cost(m: f64) -> Result<()> {
+    check_metres("leg cost", m)
+}
+
+/// Checks a length named `what`: a finite number of metres, zero or more.
+fn check_metres(what: &str, m: f64) -> Result<()> {
     if m.is_finite() && m >= 0.0 {
         Ok(())
     } else {
         Err(Error::Parameter(format!(
-            "the leg cost must be a finite number of metres, zero or more, got {m}"
+            "the {what} must be a finite number of metres, zero or more, got {m}"
         )))
     }
+}
+
+/// Checks a revisit radius ([`RobotParams::revisit_radius_m`]): a finite number of metres,
+/// zero or more.
+///
+/// # Errors
+/// [`Error::Parameter`] otherwise.
+pub fn check_revisit_radius(m: f64) -> Result<()> {
+    check_metres("revisit radius", m)
 }
 
 impl Default for RobotParams {
@@ -94,23 +115,34 @@ impl Default for RobotParams {
             tick_s: 0.1,
             sampling: Sampling::InMotion,
             leg_cost_m: LEG_COST_M,
+            revisit_radius_m: 0.0,
         }
     }
 }
 
 impl RobotParams {
+    /// The readings one pass leaves per metre of path: one per tick at full speed in motion,
+    /// one per stop with stop-sense-go.
+    pub fn readings_per_m(&self) -> f64 {
+        match self.sampling {
+            Sampling::InMotion => 1.0 / (self.max_speed_mps * self.tick_s),
+            Sampling::StopSenseGo { spacing_m, .. } => 1.0 / spacing_m,
+        }
+    }
+
     /// Checks the ranges.
     ///
     /// # Errors
-    /// [`Error::Parameter`] for non-positive speed, tick or radius, negative clearance or leg
-    /// cost, or stop-sense-go times that are negative or record nothing.
+    /// [`Error::Parameter`] for non-positive speed, tick or radius, negative clearance, leg
+    /// cost or revisit radius, or stop-sense-go times that are negative or record nothing.
     pub fn check(&self) -> Result<()> {
         let mut ok = [self.max_speed_mps, self.radius_m, self.tick_s]
             .iter()
             .all(|v| v.is_finite() && *v > 0.0)
             && self.clearance_m.is_finite()
             && self.clearance_m >= 0.0
-            && check_leg_cost(self.leg_cost_m).is_ok();
+            && check_leg_cost(self.leg_cost_m).is_ok()
+            && check_revisit_radius(self.revisit_radius_m).is_ok();
         if let Sampling::StopSenseGo {
             spacing_m,
             settle_s,

@@ -130,7 +130,7 @@ impl Session {
     ) -> Result<Self> {
         Ok(Self {
             est: Estimator::with_banks(samplers.clone(), &support, config.ste)?,
-            planner: Planner::new(config.planner, config.robot.leg_cost_m, config.planner_seed),
+            planner: Planner::new(config.planner, &config.robot, config.planner_seed),
             config,
             samplers,
             support,
