@@ -875,7 +875,7 @@ fn a_robot_without_a_leg_cost_reads_as_the_default_and_a_bad_cost_is_refused() {
 }
 
 /// Robot settings written without a revisit radius read as none, every predicted point
-/// counted in full (how they were planned); a negative, infinite or NaN radius is refused.
+/// counted in full; a negative, infinite or NaN radius is refused.
 #[test]
 fn a_robot_without_a_revisit_radius_counts_every_point_and_a_bad_radius_is_refused() {
     let with = |revisit_radius_m: f64| RobotParams {

@@ -134,12 +134,12 @@ impl Revisit {
     /// Each point's share of a fresh point's evidence: `1 / (1 + n / n1)`, with `n` the
     /// readings taken within the radius and `n1` one pass's; 1 everywhere without a radius.
     fn shares(&self, points: &[[f64; 2]], past: &[[f64; 2]]) -> Vec<f64> {
+        if self.radius_m <= 0.0 {
+            return vec![1.0; points.len()];
+        }
         points
             .iter()
             .map(|q| {
-                if self.radius_m <= 0.0 {
-                    return 1.0;
-                }
                 let near = past
                     .iter()
                     .filter(|p| (p[0] - q[0]).hypot(p[1] - q[1]) < self.radius_m)
