@@ -38,6 +38,8 @@
 //! the goal to the posterior's marginal mean `(E[x], E[y])` (normalised by the largest such
 //! distance). The robot still senses along the A* path to it.
 
+use std::collections::HashMap;
+
 use rand::SeedableRng;
 use rand::distr::{Distribution, weighted::WeightedIndex};
 use rand_chacha::ChaCha8Rng;
@@ -131,21 +133,54 @@ impl Revisit {
         }
     }
 
+    /// The grid cell, as wide as the radius, that holds `p`: every reading within the radius
+    /// of a point lies in the point's cell or one of its eight neighbours.
+    fn cell(&self, p: [f64; 2]) -> [i64; 2] {
+        p.map(|x| (x / self.radius_m).floor() as i64)
+    }
+}
+
+/// The readings already taken, binned on a grid whose cells are the revisit radius wide, so
+/// that counting those near a point looks in the nine cells around it instead of at every
+/// reading of the run.
+struct Sensed {
+    revisit: Revisit,
+    cells: HashMap<[i64; 2], Vec<[f64; 2]>>,
+}
+
+impl Sensed {
+    /// Bins the positions of the readings taken (`past`); none without a radius.
+    fn new(revisit: Revisit, past: &[[f64; 2]]) -> Self {
+        let mut cells: HashMap<[i64; 2], Vec<[f64; 2]>> = HashMap::new();
+        if revisit.radius_m > 0.0 {
+            for &p in past {
+                cells.entry(revisit.cell(p)).or_default().push(p);
+            }
+        }
+        Self { revisit, cells }
+    }
+
+    /// The readings taken within the radius of `q`.
+    fn near(&self, q: [f64; 2]) -> usize {
+        let [i, j] = self.revisit.cell(q);
+        let r = self.revisit.radius_m;
+        (i - 1..=i + 1)
+            .flat_map(|a| (j - 1..=j + 1).map(move |b| [a, b]))
+            .filter_map(|c| self.cells.get(&c))
+            .flatten()
+            .filter(|p| (p[0] - q[0]).hypot(p[1] - q[1]) < r)
+            .count()
+    }
+
     /// Each point's share of a fresh point's evidence: `1 / (1 + n / n1)`, with `n` the
     /// readings taken within the radius and `n1` one pass's; 1 everywhere without a radius.
-    fn shares(&self, points: &[[f64; 2]], past: &[[f64; 2]]) -> Vec<f64> {
-        if self.radius_m <= 0.0 {
+    fn shares(&self, points: &[[f64; 2]]) -> Vec<f64> {
+        if self.revisit.radius_m <= 0.0 {
             return vec![1.0; points.len()];
         }
         points
             .iter()
-            .map(|q| {
-                let near = past
-                    .iter()
-                    .filter(|p| (p[0] - q[0]).hypot(p[1] - q[1]) < self.radius_m)
-                    .count();
-                1.0 / (1.0 + near as f64 / self.pass_readings)
-            })
+            .map(|&q| 1.0 / (1.0 + self.near(q) as f64 / self.revisit.pass_readings))
             .collect()
     }
 }
@@ -186,8 +221,7 @@ impl Planner {
                 let leg = Leg {
                     weight: est.params().evidence_weight,
                     cost_m: self.leg_cost_m,
-                    revisit: self.revisit,
-                    past: est.positions(),
+                    sensed: Sensed::new(self.revisit, est.positions()),
                 };
                 best_by_path_gain(&hyp, est.sampler(), occupancy, position, &goals, &leg)
             }
@@ -362,12 +396,11 @@ fn far_enough(position: [f64; 2], goal: [f64; 2]) -> bool {
 }
 
 /// How a leg is scored: the evidence weight of its predicted points, what one more leg
-/// costs, and the discount of points near the readings already taken (`past`).
-struct Leg<'a> {
+/// costs, and the discount of points near the readings already taken.
+struct Leg {
     weight: f64,
     cost_m: f64,
-    revisit: Revisit,
-    past: &'a [[f64; 2]],
+    sensed: Sensed,
 }
 
 /// The goal whose path gains the most expected information per metre, each leg counting
@@ -386,7 +419,7 @@ fn best_by_path_gain(
         .filter_map(|&goal| {
             let path = occupancy.plan(position, goal)?;
             let points = path_points(&path);
-            let shares = leg.revisit.shares(&points, leg.past);
+            let shares = leg.sensed.shares(&points);
             let gain = expected_gain(hyp, sampler, &points, &shares, leg.weight);
             let score = gain / (path_length(&path) + leg.cost_m);
             Some(Plan { goal, path, score })
@@ -460,6 +493,7 @@ mod tests {
     use super::*;
     use crate::layout::Layout;
     use crate::plume::{PhysicsSolver, PlumeModel};
+    use rand::RngExt;
 
     /// A 4 m wide room `height_m` deep with the wind from the west, three sources at
     /// `x = 0.5` m and `ys`, and hypotheses of them weighing `weights`.
@@ -507,7 +541,7 @@ mod tests {
                 .collect()
         };
         let point = [[2.0, 0.5]];
-        let share = |past: &[[f64; 2]]| revisit.shares(&point, past)[0];
+        let share = |past: &[[f64; 2]]| Sensed::new(revisit, past).shares(&point)[0];
         // The readings within 0.5 m of the point: 37 of one pass, one pass's worth.
         assert!(
             (share(&pass(0.5, 1)) - 0.5).abs() < 0.02,
@@ -518,7 +552,7 @@ mod tests {
         assert_eq!(share(&pass(1.5, 3)), 1.0);
         assert_eq!(share(&[]), 1.0);
         let none = Revisit::new(&RobotParams::default());
-        assert_eq!(none.shares(&point, &pass(0.5, 3)), vec![1.0]);
+        assert_eq!(Sensed::new(none, &pass(0.5, 3)).shares(&point), vec![1.0]);
         let weight = 0.2;
         let s = share(&pass(0.5, 1));
         let discounted = expected_gain(&hyp, &sampler, &point, &[s], weight);
@@ -529,6 +563,39 @@ mod tests {
             discounted > 0.0 && discounted < whole * (1.0 - 1e-6),
             "{discounted} {whole}"
         );
+    }
+
+    /// The binned readings count, around every point, exactly the readings a look at each
+    /// reading finds within the radius: points and readings on both sides of zero, on cell
+    /// edges and at the radius's distance.
+    #[test]
+    fn binned_readings_count_what_a_look_at_each_finds() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for radius_m in [0.25, 0.5, 1.3] {
+            let revisit = Revisit::new(&RobotParams {
+                revisit_radius_m: radius_m,
+                ..RobotParams::default()
+            });
+            let mut past: Vec<[f64; 2]> = (0..400)
+                .map(|_| [rng.random_range(-3.0..5.0), rng.random_range(-2.0..4.0)])
+                .collect();
+            past.extend((-8..8).map(|k| [k as f64 * radius_m, radius_m]));
+            let mut points: Vec<[f64; 2]> = (0..300)
+                .map(|_| [rng.random_range(-4.0..6.0), rng.random_range(-3.0..5.0)])
+                .collect();
+            points.extend((-8..8).map(|k| [k as f64 * radius_m, 0.0]));
+            let sensed = Sensed::new(revisit, &past);
+            let mut some = 0;
+            for &q in &points {
+                let brute = past
+                    .iter()
+                    .filter(|p| (p[0] - q[0]).hypot(p[1] - q[1]) < radius_m)
+                    .count();
+                assert_eq!(sensed.near(q), brute, "radius {radius_m}, point {q:?}");
+                some += usize::from(brute > 0);
+            }
+            assert!(some > points.len() / 4, "radius {radius_m}: {some}");
+        }
     }
 
     /// Each observation's evidence weighs `weight`: a path sensed once at a weight gains what
@@ -596,8 +663,7 @@ mod tests {
             let leg = Leg {
                 weight,
                 cost_m: cost,
-                revisit: Revisit::new(&RobotParams::default()),
-                past: &[],
+                sensed: Sensed::new(Revisit::new(&RobotParams::default()), &[]),
             };
             let plan =
                 best_by_path_gain(&hyp, &sampler, &occupancy, position, &goals, &leg).unwrap();
