@@ -479,6 +479,24 @@ fn localize_writes_the_run_and_its_pictures() {
     assert_eq!(run["config"]["ste"]["sensor_lag_exponent"], response);
     assert_eq!(run["config"]["ste"]["detection_floor_ppm"], 0.2);
     let surrogate_json = tmp.path().join("plumenet.json");
+    // One iteration of a coarse run with these flags, its record read back.
+    let one_iteration = |flags: &[&str]| {
+        let mut args = vec![
+            "localize",
+            "--no-cache",
+            "--spacing",
+            "2",
+            "--source",
+            "4.1,2.1",
+            "--max-iterations",
+            "1",
+            "--json",
+            surrogate_json.to_str().unwrap(),
+        ];
+        args.extend_from_slice(flags);
+        plumenet_ok(&args);
+        read_json(&surrogate_json)
+    };
     // (flags, model rank factor, background rise, lag exponent, detection floor, fit reference,
     // misfit reference)
     let none = serde_json::Value::Null;
@@ -602,21 +620,7 @@ fn localize_writes_the_run_and_its_pictures() {
             none.clone(),
         ),
     ] {
-        let mut args = vec![
-            "localize",
-            "--no-cache",
-            "--spacing",
-            "2",
-            "--source",
-            "4.1,2.1",
-            "--max-iterations",
-            "1",
-            "--json",
-            surrogate_json.to_str().unwrap(),
-        ];
-        args.extend_from_slice(flags);
-        plumenet_ok(&args);
-        let run = read_json(&surrogate_json);
+        let run = one_iteration(flags);
         assert_eq!(
             run["config"]["ste"]["model_rank_factor"], factor,
             "{flags:?}"
@@ -633,6 +637,24 @@ fn localize_writes_the_run_and_its_pictures() {
         assert_eq!(run["config"]["ste"]["fit_reference"], fit, "{flags:?}");
         assert_eq!(
             run["config"]["ste"]["misfit_reference"], misfit,
+            "{flags:?}"
+        );
+    }
+
+    // The planner discounts ground already sensed within 0.25 m with the exact solver and
+    // the tempered likelihood, and counts every point in full with PlumeNet, with
+    // independent readings, or as the flag says.
+    for (flags, radius) in [
+        (&["--solver"][..], 0.25),
+        (&[][..], 0.0),
+        (&["--solver", "--evidence-weight", "1"][..], 0.0),
+        (&["--solver", "--paper-rank"][..], 0.0),
+        (&["--solver", "--revisit-radius", "0"][..], 0.0),
+        (&["--revisit-radius", "0.5"][..], 0.5),
+    ] {
+        let run = one_iteration(flags);
+        assert_eq!(
+            run["config"]["robot"]["revisit_radius_m"], radius,
             "{flags:?}"
         );
     }

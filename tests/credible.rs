@@ -362,8 +362,18 @@ fn records_without_the_new_fields_stay_readable() {
         assert_eq!(p.fit_reference_for(1.0), fit, "weight {weight}");
         assert_eq!(p.fit_reference_for(3.0), None, "weight {weight}");
     }
+    // The planner's revisit radius goes with the exact model and the tempered likelihood.
+    for (weight, exact, other) in [(0.2, 0.25, 0.0), (1.0, 0.0, 0.0)] {
+        let p = SteParams {
+            evidence_weight: weight,
+            ..rank
+        };
+        assert_eq!(p.revisit_radius_for(1.0), exact, "weight {weight}");
+        assert_eq!(p.revisit_radius_for(3.0), other, "weight {weight}");
+    }
     let paper = rank.papers_rank();
     assert_eq!((paper.misfit_reference, paper.fit_reference), (None, None));
+    assert_eq!(paper.revisit_radius_for(1.0), 0.0);
     let mut t = serde_json::to_value(Termination::for_params(&rank)).unwrap();
     assert_eq!(t["target_area_m2"], 1.0);
     assert_eq!(t["region_radius_m"], 1.5);

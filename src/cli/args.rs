@@ -434,9 +434,10 @@ pub struct RunArgs {
     leg_cost: f64,
     /// The radius (m) within which the planner counts the readings already taken around each
     /// point of a leg: a point where n passes' readings lie weighs 1 / (1 + n) of a fresh one.
-    /// 0 counts every point in full.
-    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", default_value_t = 0.0, value_parser = |s: &str| parse_metres(s, plumenet::ste::robot::check_revisit_radius), allow_negative_numbers = true)]
-    revisit_radius: f64,
+    /// 0 counts every point in full [default: 0.25 with the solver, 0 with PlumeNet or
+    /// --paper-rank].
+    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", value_parser = |s: &str| parse_metres(s, plumenet::ste::robot::check_revisit_radius), allow_negative_numbers = true)]
+    revisit_radius: Option<f64>,
 }
 
 /// A length in metres, checked as the library checks it (`check`: a leg cost or a revisit
@@ -462,8 +463,14 @@ impl RunArgs {
         Ok(t.check(layout.width() * layout.height())?)
     }
 
-    /// The run settings for a feature and sensor.
-    pub fn config(&self, ste: ValidSteParams, sensor: SensorPreset) -> EpisodeConfig {
+    /// The run settings for a feature and sensor, with a plume model whose own rank factor is
+    /// `model_factor` ([`PlumeModel::rank_factor`]; the revisit radius's default goes with it).
+    pub fn config(
+        &self,
+        ste: ValidSteParams,
+        sensor: SensorPreset,
+        model_factor: f64,
+    ) -> EpisodeConfig {
         let mut c = EpisodeConfig::new(ste.feature, sensor);
         c.ste = ste.into_inner();
         c.termination = Termination::for_params(&c.ste);
@@ -475,7 +482,9 @@ impl RunArgs {
         }
         c.termination.stable_iterations = usize::from(self.stable_iterations);
         c.robot.leg_cost_m = self.leg_cost;
-        c.robot.revisit_radius_m = self.revisit_radius;
+        c.robot.revisit_radius_m = self
+            .revisit_radius
+            .unwrap_or_else(|| c.ste.revisit_radius_for(model_factor));
         // An entropy threshold asks for the entropy rule; a target area for the area rule.
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;

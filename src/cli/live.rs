@@ -9,7 +9,7 @@ use plumenet::io;
 use plumenet::io::sha256_hex;
 use plumenet::layout::Layout;
 use plumenet::physics::wind::WindField;
-use plumenet::plume::PlumeModel;
+use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::sim::Reality;
 use plumenet::ste::{Feature, RoomBanks, SensorPreset, SteParams};
 
@@ -55,7 +55,7 @@ impl SessionArgs {
                 .room(layout, &self.features, self.feature.into(), true)?;
         let mut config = self
             .run
-            .config(params, SensorPreset::SensorII)
+            .config(params, SensorPreset::SensorII, model.rank_factor())
             .session(self.seed);
         config.max_readings = self.max_readings;
         Ok((room, config, model))
@@ -123,6 +123,7 @@ pub fn robot_sim(a: RobotSimArgs) -> Result<()> {
     let config = a.run.config(
         SteParams::for_feature(Feature::Rank).validate()?,
         a.sensor.into(),
+        PhysicsSolver.rank_factor(),
     );
     let start = a.trial.start(&layout, &config.robot, a.seed)?;
     let wind = WindField::solve(&layout)?;

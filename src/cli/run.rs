@@ -60,7 +60,7 @@ pub fn localize(a: LocalizeArgs) -> Result<()> {
     let (room, params, model) = a.plume.room(layout, &a.features, feature, false)?;
     let model_name = model.name();
     let world = World::new(room)?.with_mismatch(mismatch)?;
-    let config = a.run.config(params, a.sensor.into());
+    let config = a.run.config(params, a.sensor.into(), model.rank_factor());
     let start = a.trial.start(&world.room.layout, &config.robot, a.seed)?;
     let keep_posteriors = a.png_dir.is_some() || a.html.is_some();
     let episode = run_episode(&world, &config, source, start, a.seed, keep_posteriors)?;

@@ -8,7 +8,7 @@ use clap::Args;
 use plumenet::io;
 use plumenet::layout::Layout;
 use plumenet::physics::wind::WindField;
-use plumenet::plume::PlumeModel;
+use plumenet::plume::{PhysicsSolver, PlumeModel};
 use plumenet::sim::episode::StartRule;
 use plumenet::sim::survey::{fly, lawnmower};
 use plumenet::sim::{EpisodeConfig, Mismatch, Reality};
@@ -245,6 +245,7 @@ pub fn experiment(a: ExperimentArgs) -> Result<()> {
         .config(
             SteParams::for_feature(Feature::Rank).validate()?,
             SensorPreset::SensorII,
+            PhysicsSolver.rank_factor(),
         )
         .robot;
     let default_layout = [PathBuf::from("data/layouts/wind-tunnel.json")];
@@ -323,6 +324,7 @@ impl<'a> Runner<'a> {
     /// Runs a study with the bar counting its runs.
     fn run(&self, study: &Study<'_>, bar: &indicatif::ProgressBar) -> Result<Vec<RunRow>> {
         let (features, settings, run) = (self.features, &self.settings, self.run);
+        let factors: Vec<f64> = self.loaded.iter().map(|m| m.rank_factor()).collect();
         let rows = study.run(
             |layout, k| {
                 let (room, note) = self
@@ -334,7 +336,7 @@ impl<'a> Runner<'a> {
             |f, s, k| {
                 let at = features.iter().position(|&g| g == f);
                 let params = at.map(|i| settings[k][i]).expect("a planned feature");
-                run.config(params, s)
+                run.config(params, s, factors[k])
             },
             || bar.inc(1),
         )?;
@@ -374,7 +376,11 @@ pub fn calibration(a: CalibrationArgs) -> Result<()> {
     let robot = a
         .estimator
         .run
-        .config(runner.settings[0][0], SensorPreset::SensorII)
+        .config(
+            runner.settings[0][0],
+            SensorPreset::SensorII,
+            runner.loaded[0].rank_factor(),
+        )
         .robot;
     let plans: Vec<_> = suites
         .iter()

@@ -312,6 +312,20 @@ impl SteParams {
         (self.tempered() && model_factor <= exact_model_ranks()).then_some(TEMPERED_FIT_REFERENCE)
     }
 
+    /// The [`crate::ste::robot::RobotParams::revisit_radius_m`] these settings give a plume
+    /// model whose own rank factor is `model_factor` ([`crate::plume::PlumeModel::rank_factor`]):
+    /// with a tempered likelihood [`TEMPERED_REVISIT_RADIUS_M`] for a model whose
+    /// concentrations are exact (the solver), whose runs it ends sooner at the same errors and
+    /// coverage; 0, every predicted point counted in full, for a model known only within a
+    /// wider factor (PlumeNet), whose quicker runs some converge far off, and with independent
+    /// readings (`docs/calibration.md`).
+    pub fn revisit_radius_for(&self, model_factor: f64) -> f64 {
+        match self.tempered() && model_factor <= exact_model_ranks() {
+            true => TEMPERED_REVISIT_RADIUS_M,
+            false => 0.0,
+        }
+    }
+
     /// The [`SteParams::misfit_reference`] these settings give, for every plume model: with a
     /// tempered likelihood [`TEMPERED_MISFIT_REFERENCE`], where a misfit worse than usual
     /// says that reality departs from the model; none with independent readings, the paper's
@@ -573,6 +587,13 @@ pub const TEMPERED_RANK_FACTOR: f64 = 1.5;
 /// reality does keep their regions (0.01 to 0.03 measured on the tuning seed's surveys and
 /// planned suites; `docs/calibration.md`).
 pub const TEMPERED_FIT_REFERENCE: f64 = 0.02;
+
+/// The default revisit radius (m) of a tempered likelihood with an exact plume model
+/// ([`SteParams::revisit_radius_for`]): on the tuning suites it ended the solver's runs in
+/// 13 / 15 / 22 median iterations (arena / rooms / mismatch) against 16.5 / 18.5 / 26 with
+/// none, at the same coverage and errors, with no run converged far off; 0.5 m ended them
+/// sooner still but one rooms run 4.5 m off (`docs/calibration.md`).
+pub const TEMPERED_REVISIT_RADIUS_M: f64 = 0.25;
 
 /// The default misfit reference of a tempered likelihood ([`SteParams::misfit_reference_for`]):
 /// on the tuning seed's suites, above the misfit of nine in ten planned arena runs that ended
