@@ -162,10 +162,13 @@ impl Sensed {
 
     /// The readings taken within the radius of `q`.
     fn near(&self, q: [f64; 2]) -> usize {
+        // The cells beside it, saturating where a radius too small for the room's extent in
+        // cells puts the point in the grid's last cell.
+        let around = |k: i64| k.saturating_sub(1)..=k.saturating_add(1);
         let [i, j] = self.revisit.cell(q);
         let r = self.revisit.radius_m;
-        (i - 1..=i + 1)
-            .flat_map(|a| (j - 1..=j + 1).map(move |b| [a, b]))
+        around(i)
+            .flat_map(|a| around(j).map(move |b| [a, b]))
             .filter_map(|c| self.cells.get(&c))
             .flatten()
             .filter(|p| (p[0] - q[0]).hypot(p[1] - q[1]) < r)
@@ -596,6 +599,16 @@ mod tests {
             }
             assert!(some > points.len() / 4, "radius {radius_m}: {some}");
         }
+        // A radius so small that the room spans more cells than an i64 counts: every point
+        // lies in the grid's last cell, and the readings at a point's own position still count.
+        let tiny = Revisit::new(&RobotParams {
+            revisit_radius_m: 1e-300,
+            ..RobotParams::default()
+        });
+        let sensed = Sensed::new(tiny, &[[1.0, 2.0], [1.0, 2.0], [3.0, 4.0]]);
+        assert_eq!(sensed.near([1.0, 2.0]), 2);
+        assert_eq!(sensed.near([3.0, 4.0]), 1);
+        assert_eq!(sensed.near([2.0, 2.0]), 0);
     }
 
     /// Each observation's evidence weighs `weight`: a path sensed once at a weight gains what
