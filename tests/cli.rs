@@ -677,6 +677,61 @@ fn localize_writes_the_run_and_its_pictures() {
 }
 
 #[test]
+fn a_run_with_an_upwind_probe_returns_through_it_before_it_stops() {
+    // An arena run whose source lies by the south wall: at evidence weight 0.3 its posterior
+    // settles 2.1 m downwind of the source, where the robot never drove between them.
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let run_with = |probe: &str| {
+        let json = tmp.path().join(format!("run-{probe}.json"));
+        plumenet_ok(&[
+            "localize",
+            "--source",
+            "10.496734550318372,0.5361144658323198",
+            "--start",
+            "15.46769769986209,2.7129367940066107",
+            "--seed",
+            "10420694705320995839",
+            "--evidence-weight",
+            "0.3",
+            "--misfit-reference",
+            "33.333333333333336",
+            "--upwind-probe",
+            probe,
+            "--json",
+            json.to_str().unwrap(),
+            "--cache-dir",
+            cache.to_str().unwrap(),
+        ]);
+        read_json(&json)
+    };
+    let estimate = |run: &serde_json::Value| [0, 1].map(|k| run["estimate"][k].as_f64().unwrap());
+    let without = run_with("0");
+    let with = run_with("1");
+    assert_eq!(with["config"]["termination"]["upwind_probe_m"], 1.0);
+    assert_eq!(without["converged"], true);
+    assert_eq!(with["converged"], true);
+    // The last leg went upwind of the estimate it was planned from and back to it...
+    let history = with["history"].as_array().unwrap();
+    let (before, last) = (&history[history.len() - 2], &history[history.len() - 1]);
+    assert_eq!(last["goal"], before["estimate"]);
+    let west = with["samples"].as_array().unwrap()[before["samples"].as_u64().unwrap() as usize..]
+        .iter()
+        .map(|s| s["x"].as_f64().unwrap())
+        .fold(f64::INFINITY, f64::min);
+    let planned_from = before["estimate"][0].as_f64().unwrap();
+    assert!(west <= planned_from - 3.0, "{west} from {planned_from}");
+    // ...and the run stopped having sensed 1 m upwind (west) of its last estimate, which the
+    // readings on the way back moved upwind, towards the source.
+    let [ex, ey] = estimate(&with);
+    assert!(with["samples"].as_array().unwrap().iter().any(|s| {
+        let [x, y] = [&s["x"], &s["y"]].map(|v| v.as_f64().unwrap());
+        (x - (ex - 1.0)).hypot(y - ey) <= 0.375
+    }));
+    assert!(ex < estimate(&without)[0], "{ex}");
+}
+
+#[test]
 fn replay_and_experiment_write_their_reports() {
     let tmp = tempfile::tempdir().unwrap();
     let log = tmp.path().join("log.csv");
@@ -1292,6 +1347,14 @@ fn bad_likelihood_settings_fail_before_the_bank() {
         (
             &["serve", "--revisit-radius", "inf"][..],
             "the revisit radius must be a finite number of metres, zero or more, got inf",
+        ),
+        (
+            &["localize", "--source", "4.5,2.5", "--upwind-probe", "-1"][..],
+            "the upwind probe must be a finite number of metres, zero or more, got -1",
+        ),
+        (
+            &["experiment", "--runs", "1", "--upwind-probe", "NaN"][..],
+            "the upwind probe must be a finite number of metres, zero or more, got NaN",
         ),
         (
             &["calibration", "--quick", "--target-area", "0"][..],

@@ -1302,6 +1302,7 @@ fn termination_needs_a_stable_concentrated_belief() {
         target_area_m2: None,
         region_radius_m: None,
         require_plume: false,
+        upwind_probe_m: None,
     };
     // The budget: 30 up to 72 m² of free floor, then with its square root (4 x 72 m²: twice);
     // a fixed limit stays.

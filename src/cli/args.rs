@@ -438,10 +438,15 @@ pub struct RunArgs {
     /// --paper-rank].
     #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", value_parser = |s: &str| parse_metres(s, plumenet::ste::robot::check_revisit_radius), allow_negative_numbers = true)]
     revisit_radius: Option<f64>,
+    /// Stop only once the robot has sensed this far (m) upwind of its estimate, driving there
+    /// when the rest of the rule holds: a source further upwind leaves gas there. 0 probes
+    /// nowhere [default: 0].
+    #[arg(long, value_name = "M", hide_short_help = true, help_heading = "Robot and stopping rule", value_parser = |s: &str| parse_metres(s, plumenet::ste::termination::check_upwind_probe), allow_negative_numbers = true)]
+    upwind_probe: Option<f64>,
 }
 
 /// A length in metres, checked as the library checks it (`check`: a leg cost or a revisit
-/// radius, [`plumenet::ste::robot`]).
+/// radius, [`plumenet::ste::robot`], or an upwind probe, [`plumenet::ste::termination`]).
 fn parse_metres(
     s: &str,
     check: fn(f64) -> plumenet::error::Result<()>,
@@ -489,6 +494,9 @@ impl RunArgs {
         if let Some(h) = self.entropy_threshold {
             c.termination.entropy_nats = h;
             c.termination.target_area_m2 = None;
+        }
+        if self.upwind_probe.is_some() {
+            c.termination.upwind_probe_m = self.upwind_probe;
         }
         if self.target_area.is_some() {
             c.termination.target_area_m2 = self.target_area;

@@ -3,7 +3,7 @@
 //! [`sensor`] models the MOX sensor, [`features`] extracts the four gas features, [`banks`]
 //! holds the plume model's banks of a room, [`sampler`] reads a bank at reading positions,
 //! [`params`] holds the estimator's settings, [`posterior`] the Bayesian filter, [`termination`] the
-//! stopping rule, [`credible`] the credible regions and uncertainty every report states, [`robot`] the occupancy
+//! stopping rule, [`probe`] where the robot must have sensed before it stops, [`credible`] the credible regions and uncertainty every report states, [`robot`] the occupancy
 //! grid and A* paths, [`planner`] the belief-clustering and baseline planners, [`session`] the
 //! live session a robot drives and [`protocol`] its line protocol, [`replay`] the estimator
 //! over a logged run, [`baseline`] the simple guesses every report shows beside the estimate.
@@ -15,6 +15,7 @@ pub mod features;
 pub mod params;
 pub mod planner;
 pub mod posterior;
+pub mod probe;
 pub mod protocol;
 pub mod replay;
 pub mod robot;

@@ -8,7 +8,7 @@
 //! - `readings` with `"readings": [{"t", "x", "y", "value"}, ...]`: `accepted` (the count so far);
 //! - `iterate`, optionally with `"position": [x, y]` (default: the last reading's): `iteration`,
 //!   `readings`, `estimate`, `entropy`, `fit`, `plume_signal`, `plume_reached`,
-//!   `credible_region`, `converged`,
+//!   `credible_region`, `probe`, `converged`,
 //!   `done`, `goal` and `path` (see [`Iteration`](crate::ste::session::Iteration));
 //! - `belief`: `estimate`, `posterior` (`x`, `y`, `p` per candidate) and `uncertainty` (the
 //!   credible regions and expected distance, [`Uncertainty`](crate::ste::Uncertainty)) as of

@@ -87,7 +87,7 @@ pub fn check_leg_cost(m: f64) -> Result<()> {
 }
 
 /// Checks a length named `what`: a finite number of metres, zero or more.
-fn check_metres(what: &str, m: f64) -> Result<()> {
+pub(crate) fn check_metres(what: &str, m: f64) -> Result<()> {
     if m.is_finite() && m >= 0.0 {
         Ok(())
     } else {

@@ -16,8 +16,9 @@ use crate::error::{Error, Result};
 use crate::layout::Layout;
 use crate::ste::banks::{PRIOR_BAND_M, RoomBanks};
 use crate::ste::credible::region_cells;
-use crate::ste::planner::{Planner, PlannerKind};
+use crate::ste::planner::{Plan, Planner, PlannerKind};
 use crate::ste::posterior::{Estimator, Sample, SteParams, prior_support};
+use crate::ste::probe::{probe_path, probe_point, sensed};
 use crate::ste::robot::{Occupancy, RobotParams};
 use crate::ste::sampler::FieldSampler;
 use crate::ste::termination::{PLUME_SIGNAL_NOISES, Termination};
@@ -72,6 +73,12 @@ pub struct Iteration {
     pub plume_reached: bool,
     /// The candidates of the smallest set holding 90% of the posterior, most probable first.
     pub credible_region: Vec<[f64; 2]>,
+    /// Where the robot must sense before the run may stop ([`crate::ste::probe`]): set when
+    /// the rest of the rule holds and the robot has not sensed there yet; the path then runs
+    /// upwind beyond it and back through it to the estimate, the goal. A reply without it
+    /// reads as `None`.
+    #[serde(default)]
+    pub probe: Option<[f64; 2]>,
     /// Whether the termination rule holds.
     pub converged: bool,
     /// Whether the session is over: converged, or at the iteration limit.
@@ -98,6 +105,8 @@ pub struct Session {
     pending: usize,
     iterations: usize,
     converged: bool,
+    /// The upwind probe the last update left to sense before the run may stop.
+    probe: Option<[f64; 2]>,
     recent: Vec<(bool, [f64; 2])>,
 }
 
@@ -141,6 +150,7 @@ impl Session {
             pending: 0,
             iterations: 0,
             converged: false,
+            probe: None,
             recent: Vec::new(),
         })
     }
@@ -246,7 +256,9 @@ impl Session {
             }
             self.pending = 0;
             self.iterations += 1;
-            self.converged = self.config.termination.converged(&self.est, &self.recent);
+            let holds = self.config.termination.converged(&self.est, &self.recent);
+            self.probe = holds.then(|| self.unsensed_probe()).flatten();
+            self.converged = holds && self.probe.is_none();
             if !self.converged {
                 self.recent.push((
                     self.config.termination.concentrated(&self.est),
@@ -269,7 +281,20 @@ impl Session {
                         "no position to plan from: send a reading or the robot's position".into(),
                     )
                 })?;
-            Some(self.planner.next(&self.est, &self.occupancy, from)?)
+            // The probe's leg, where the robot can drive there; the planner's otherwise.
+            let probe = self.probe.and_then(|point| {
+                let goal = self.est.estimate();
+                let path = probe_path(self.layout(), &self.occupancy, from, point, goal)?;
+                Some(Plan {
+                    goal,
+                    path,
+                    score: 0.0,
+                })
+            });
+            match probe {
+                Some(plan) => Some(plan),
+                None => Some(self.planner.next(&self.est, &self.occupancy, from)?),
+            }
         };
         let candidates = self.est.candidates();
         Ok(Iteration {
@@ -281,11 +306,27 @@ impl Session {
             plume_signal: self.est.plume_signal(),
             plume_reached: self.est.reaches_plume(PLUME_SIGNAL_NOISES),
             credible_region: region_cells(candidates, self.est.posterior(), CREDIBLE_MASS),
+            probe: self.probe,
             converged: self.converged,
             done,
             goal: plan.as_ref().map(|p| p.goal),
             path: plan.map_or_else(Vec::new, |p| p.path),
         })
+    }
+
+    /// The upwind probe of the estimate ([`Termination::upwind_probe_m`]) when the robot has
+    /// not sensed there yet and can drive there from its last reading; `None` otherwise.
+    fn unsensed_probe(&self) -> Option<[f64; 2]> {
+        let distance = self.config.termination.upwind_probe_m?;
+        let point = probe_point(
+            self.layout(),
+            &self.occupancy,
+            self.est.estimate(),
+            distance,
+        )?;
+        let last = self.readings.last()?;
+        (!sensed(&self.readings, point) && self.occupancy.plan([last.x, last.y], point).is_some())
+            .then_some(point)
     }
 
     /// The iteration limit in this room ([`Termination::budget`] of its free floor).

@@ -7,6 +7,7 @@ use crate::error::{Error, Result};
 use crate::ste::credible;
 use crate::ste::params::SteParams;
 use crate::ste::posterior::Estimator;
+use crate::ste::robot::check_metres;
 
 /// The free floor (m^2) up to which [`Termination::max_iterations`] holds as it is: the paper
 /// arena's whole floor.
@@ -52,6 +53,11 @@ pub struct Termination {
     /// met. `false` (what a record without this field reads as) stops without it.
     #[serde(default)]
     pub require_plume: bool,
+    /// When set, a run whose belief meets the rest of the rule stops only once the robot has
+    /// sensed this far (m) upwind of the estimate ([`crate::ste::probe`]); until then its next
+    /// leg goes there. `None` (what a record without this field reads as) stops without it.
+    #[serde(default)]
+    pub upwind_probe_m: Option<f64>,
 }
 
 /// Noise levels above the readings' median that the highest reading must reach before a run
@@ -72,6 +78,7 @@ impl Default for Termination {
             target_area_m2: None,
             region_radius_m: None,
             require_plume: false,
+            upwind_probe_m: None,
         }
     }
 }
@@ -135,8 +142,11 @@ impl Termination {
     ///
     /// # Errors
     /// [`Error::Parameter`] for a target area that is not positive or larger than the room,
-    /// or a region radius that is not positive.
+    /// a region radius that is not positive, or an upwind probe distance that is negative.
     pub fn check(&self, area_m2: f64) -> Result<()> {
+        if let Some(d) = self.upwind_probe_m {
+            check_upwind_probe(d)?;
+        }
         if let Some(r) = self
             .region_radius_m
             .filter(|r| !(r.is_finite() && *r > 0.0))
@@ -169,6 +179,15 @@ impl Termination {
                 .iter()
                 .all(|&(c, [x, y])| c && (x - mx).hypot(y - my) <= self.radius_m)
     }
+}
+
+/// Checks an upwind probe distance ([`Termination::upwind_probe_m`]): a finite number of metres,
+/// zero (no probe) or more.
+///
+/// # Errors
+/// [`Error::Parameter`] naming the value otherwise.
+pub fn check_upwind_probe(m: f64) -> Result<()> {
+    check_metres("upwind probe", m)
 }
 
 /// Whether every candidate of `cells` lies within `radius_m` of the MAP cell.
