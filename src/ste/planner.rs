@@ -279,13 +279,7 @@ impl Planner {
         }
         goals
             .into_iter()
-            .map(|[x, y]| {
-                if occupancy.is_free(x, y) {
-                    [x, y]
-                } else {
-                    occupancy.nearest_free(x, y)
-                }
-            })
+            .map(|p| occupancy.free_or_nearest(p))
             .collect()
     }
 
@@ -454,13 +448,7 @@ fn baseline(
         .flat_map(|j| {
             (0..nx).map(move |i| [(i as f64 + 0.5) * LATTICE_M, (j as f64 + 0.5) * LATTICE_M])
         })
-        .map(|[x, y]| {
-            if occupancy.is_free(x, y) {
-                [x, y]
-            } else {
-                occupancy.nearest_free(x, y)
-            }
-        })
+        .map(|p| occupancy.free_or_nearest(p))
         .filter(|&g| far_enough(position, g))
         .collect();
     let gains: Vec<f64> = goals

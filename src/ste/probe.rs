@@ -34,13 +34,15 @@ pub fn probe_point(
     if distance_m <= 0.0 {
         return None;
     }
+    let upwind = upwind_of(layout, estimate, distance_m);
+    let point = occupancy.free_or_nearest(upwind);
+    (distance(point, upwind) <= PROBE_RADIUS_M).then_some(point)
+}
+
+/// The point `distance_m` upwind of `p` along the inlet's wind.
+fn upwind_of(layout: &Layout, p: [f64; 2], distance_m: f64) -> [f64; 2] {
     let [dx, dy] = layout.wind_from().downwind();
-    let [x, y] = [estimate[0] - distance_m * dx, estimate[1] - distance_m * dy];
-    let point = match occupancy.is_free(x, y) {
-        true => [x, y],
-        false => occupancy.nearest_free(x, y),
-    };
-    (distance(point, [x, y]) <= PROBE_RADIUS_M).then_some(point)
+    [p[0] - distance_m * dx, p[1] - distance_m * dy]
 }
 
 /// How far (m) beyond the probe point the robot drives upwind before it returns to it: about
@@ -59,15 +61,7 @@ pub fn probe_path(
     point: [f64; 2],
     end: [f64; 2],
 ) -> Option<Vec<[f64; 2]>> {
-    let [dx, dy] = layout.wind_from().downwind();
-    let [x, y] = [
-        point[0] - PROBE_RUN_UP_M * dx,
-        point[1] - PROBE_RUN_UP_M * dy,
-    ];
-    let run_up = match occupancy.is_free(x, y) {
-        true => [x, y],
-        false => occupancy.nearest_free(x, y),
-    };
+    let run_up = occupancy.free_or_nearest(upwind_of(layout, point, PROBE_RUN_UP_M));
     let there = occupancy.plan(from, run_up);
     let back = occupancy.plan(run_up, end);
     match (there, back) {

@@ -223,6 +223,16 @@ impl Occupancy {
         best
     }
 
+    /// The point itself when the robot may stand there, else the centre of the nearest free
+    /// cell ([`Occupancy::nearest_free`]).
+    pub fn free_or_nearest(&self, [x, y]: [f64; 2]) -> [f64; 2] {
+        if self.is_free(x, y) {
+            [x, y]
+        } else {
+            self.nearest_free(x, y)
+        }
+    }
+
     /// Whether the straight segment stays in free space (checked every quarter cell).
     pub fn segment_free(&self, a: [f64; 2], b: [f64; 2]) -> bool {
         let len = (b[0] - a[0]).hypot(b[1] - a[1]);
@@ -262,16 +272,8 @@ impl Occupancy {
     /// An obstacle-free path from `from` to `to` (both snapped to the nearest free cell when
     /// they are not free), as a polyline starting at `from`; `None` when the goal is unreachable.
     pub fn plan(&self, from: [f64; 2], to: [f64; 2]) -> Option<Vec<[f64; 2]>> {
-        let start_pt = if self.is_free(from[0], from[1]) {
-            from
-        } else {
-            self.nearest_free(from[0], from[1])
-        };
-        let goal_pt = if self.is_free(to[0], to[1]) {
-            to
-        } else {
-            self.nearest_free(to[0], to[1])
-        };
+        let start_pt = self.free_or_nearest(from);
+        let goal_pt = self.free_or_nearest(to);
         let start = self.cell_of(start_pt[0], start_pt[1])?;
         let goal = self.cell_of(goal_pt[0], goal_pt[1])?;
         let octile = |&(j, i): &Cell| {

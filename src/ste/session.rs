@@ -291,10 +291,10 @@ impl Session {
                     score: 0.0,
                 })
             });
-            match probe {
-                Some(plan) => Some(plan),
-                None => Some(self.planner.next(&self.est, &self.occupancy, from)?),
-            }
+            Some(match probe {
+                Some(plan) => plan,
+                None => self.planner.next(&self.est, &self.occupancy, from)?,
+            })
         };
         let candidates = self.est.candidates();
         Ok(Iteration {
